@@ -1,0 +1,117 @@
+"""The one point-cloud type every point source returns, with PLY I/O through Open3D's tensor API."""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .sphere import erp_directions
+
+
+@dataclass
+class PointCloud:
+    """Points in the world frame.
+
+    xyz: [N, 3] float32 metres; rgb: [N, 3] float32 in [0, 1]; normals: [N, 3] float32 unit or None;
+    view_id: [N] int32 index of the view that produced each point (-1 when none) or None.
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray
+    normals: np.ndarray | None = None
+    view_id: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.xyz = np.ascontiguousarray(self.xyz, dtype=np.float32).reshape(-1, 3)
+        self.rgb = np.ascontiguousarray(self.rgb, dtype=np.float32).reshape(-1, 3)
+        if len(self.rgb) != len(self.xyz):
+            raise ValueError(f"PointCloud: {len(self.xyz)} points but {len(self.rgb)} colours")
+        if not np.isfinite(self.xyz).all():
+            raise ValueError("PointCloud: xyz holds NaN or Inf; drop those points before building the cloud")
+        if self.normals is not None:
+            self.normals = np.ascontiguousarray(self.normals, dtype=np.float32).reshape(-1, 3)
+        if self.view_id is not None:
+            self.view_id = np.ascontiguousarray(self.view_id, dtype=np.int32).reshape(-1)
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+    def subset(self, index: np.ndarray) -> "PointCloud":
+        """The points selected by a boolean mask or index array."""
+        return PointCloud(
+            self.xyz[index],
+            self.rgb[index],
+            None if self.normals is None else self.normals[index],
+            None if self.view_id is None else self.view_id[index],
+            dict(self.meta),
+        )
+
+    def to_open3d(self):
+        """A legacy ``open3d.geometry.PointCloud`` (xyz, colours, normals)."""
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.xyz.astype(np.float64)))
+        pc.colors = o3d.utility.Vector3dVector(self.rgb.astype(np.float64))
+        if self.normals is not None:
+            pc.normals = o3d.utility.Vector3dVector(self.normals.astype(np.float64))
+        return pc
+
+    def save_ply(self, path: str | os.PathLike) -> None:
+        """Write a binary PLY (x,y,z, red,green,blue as float, nx,ny,nz, view_id) atomically."""
+        import open3d as o3d
+
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pc = o3d.t.geometry.PointCloud()
+        pc.point.positions = o3d.core.Tensor(self.xyz)
+        pc.point.colors = o3d.core.Tensor(self.rgb)
+        if self.normals is not None:
+            pc.point.normals = o3d.core.Tensor(self.normals)
+        if self.view_id is not None:
+            pc.point.view_id = o3d.core.Tensor(self.view_id.reshape(-1, 1))
+        tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+        if not o3d.t.io.write_point_cloud(str(tmp), pc, write_ascii=False):
+            tmp.unlink(missing_ok=True)
+            raise OSError(f"could not write point cloud to {path}")
+        os.replace(tmp, path)
+
+    @classmethod
+    def load_ply(cls, path: str | os.PathLike) -> "PointCloud":
+        """Read a PLY written by ``save_ply`` or any PLY with positions (colours optional)."""
+        import open3d as o3d
+
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"point cloud {path}: no such file")
+        pc = o3d.t.io.read_point_cloud(str(path))
+        if "positions" not in pc.point or len(pc.point.positions) == 0:
+            raise ValueError(f"point cloud {path}: no vertices could be read (expected a PLY with x, y, z)")
+        xyz = pc.point.positions.numpy()
+        rgb = pc.point.colors.numpy() if "colors" in pc.point else np.full_like(xyz, 0.5)
+        if rgb.dtype == np.uint8:
+            rgb = rgb / 255.0
+        normals = pc.point.normals.numpy() if "normals" in pc.point else None
+        view_id = pc.point.view_id.numpy().reshape(-1) if "view_id" in pc.point else None
+        extra = {k: pc.point[k].numpy().reshape(len(xyz), -1) for k in pc.point if k not in ("positions", "colors", "normals", "view_id")}
+        return cls(xyz, rgb, normals, view_id, {"scalars": extra} if extra else {})
+
+
+def erp_point_cloud(rgb: np.ndarray, distance: np.ndarray, keep: np.ndarray | None = None,
+                    origin=(0.0, 0.0, 0.0)) -> PointCloud:
+    """Back-project an ERP image [H, W, 3] (uint8 or float in [0, 1]) and ray distance [H, W] (metres).
+
+    Pixels with non-finite or non-positive distance, or outside ``keep``, give no point.
+    """
+    H, W = distance.shape
+    ok = np.isfinite(distance) & (distance > 0)
+    if keep is not None:
+        ok &= keep
+    d = erp_directions(H, W)[ok]
+    xyz = d * distance[ok][:, None] + np.asarray(origin, float)
+    col = rgb[ok].astype(np.float32)
+    if rgb.dtype == np.uint8:
+        col /= 255.0
+    return PointCloud(xyz, col, normals=None, view_id=None)

@@ -1,0 +1,96 @@
+"""File I/O with one clear error per bad input and no half-written output (temp file, then rename)."""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+MAX_ERP_WIDTH = 16384
+
+
+class PanoreconInputError(ValueError):
+    """Bad user input: the message names the input and what was expected."""
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, suffix: str | None = None):
+    """Yield a temporary path beside ``path``; on success rename it over ``path``, else delete it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_image(path: str | os.PathLike, *, erp: bool = False, unchanged: bool = False) -> np.ndarray:
+    """Read an image file -> [H, W, 3] uint8 RGB (or the stored dtype/channels when ``unchanged``).
+
+    With ``erp=True`` the image must be an equirectangular panorama: width == 2 * height and width <= 16384.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise PanoreconInputError(f"{path}: no such file")
+    flags = cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR
+    data = np.fromfile(str(path), dtype=np.uint8)
+    img = cv2.imdecode(data, flags) if data.size else None
+    if img is None:
+        raise PanoreconInputError(f"{path}: not a readable image (unknown format, truncated or empty file)")
+    if not unchanged or (img.ndim == 3 and img.shape[2] == 3):
+        img = np.ascontiguousarray(img[..., ::-1]) if img.ndim == 3 else img
+    if erp:
+        check_erp_shape(img.shape[:2], str(path))
+    return img
+
+
+def check_erp_shape(hw: tuple[int, int], what: str) -> None:
+    """Raise a PanoreconInputError unless (H, W) is a 2:1 panorama no wider than 16384 pixels."""
+    h, w = hw
+    if w != 2 * h:
+        raise PanoreconInputError(f"{what}: size {w}x{h} is not an equirectangular panorama (expected width = 2 x height)")
+    if w > MAX_ERP_WIDTH:
+        raise PanoreconInputError(f"{what}: width {w} is larger than the supported {MAX_ERP_WIDTH} pixels")
+    if h < 2:
+        raise PanoreconInputError(f"{what}: size {w}x{h} is too small (expected height >= 2)")
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write [H, W, 3] RGB or [H, W] gray (uint8 or uint16) atomically; format from the suffix."""
+    path = Path(path)
+    arr = image[..., ::-1] if image.ndim == 3 else image
+    ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(arr))
+    if not ok:
+        raise OSError(f"could not encode image for {path}")
+    with atomic_write(path) as tmp:
+        buf.tofile(str(tmp))
+
+
+def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
+    """np.save atomically."""
+    with atomic_write(path, suffix=".npy") as tmp:
+        np.save(tmp, array)
+
+
+def write_json(path: str | os.PathLike, obj) -> None:
+    """Pretty JSON, atomically; NaN/Inf are refused (they are not JSON)."""
+    with atomic_write(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, allow_nan=False, default=_json_default) + "\n")
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
