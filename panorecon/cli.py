@@ -1,0 +1,146 @@
+"""The ``panorecon`` command. Each subcommand imports only what it needs."""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+from .io import PanoreconInputError
+
+log = logging.getLogger("panorecon")
+
+
+# ---------------------------------------------------------------- scenes
+def cmd_scenes_list(args) -> int:
+    from .scenes import list_scenes
+
+    rows = [(s.name, s.kind, "yes" if s.has_ground_truth else "no", s.description) for s in list_scenes()]
+    w = max(len(r[0]) for r in rows)
+    print(f"{'name':<{w}}  {'kind':<9}  {'truth':<5}  description")
+    for name, kind, gt, desc in rows:
+        print(f"{name:<{w}}  {kind:<9}  {gt:<5}  {desc}")
+    return 0
+
+
+def cmd_render(args) -> int:
+    import numpy as np
+
+    from .io import save_npy, write_image
+    from .scenes import load_scene
+
+    t0 = time.perf_counter()
+    scene = load_scene(args.scene, args.width)
+    seconds = time.perf_counter() - t0
+    out = Path(args.out)
+    write_image(out / "pano.png", scene.rgb)
+    mask = scene.valid if scene.distance is not None else ~scene.sky
+    write_image(out / "mask.png", (mask * 255).astype(np.uint8))
+    if scene.distance is not None:
+        save_npy(out / "distance.npy", scene.distance.astype(np.float32))
+    print(f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s -> {out}"
+          + ("" if scene.distance is not None else " (no depth: distance.npy not written)"))
+    return 0
+
+
+def cmd_gt_cloud(args) -> int:
+    from .scenes import load_scene
+
+    scene = load_scene(args.scene, args.width)
+    if scene.distance is None:
+        raise PanoreconInputError(f"scene {scene.name!r} has no depth, so it has no ground-truth cloud")
+    if not scene.has_ground_truth:
+        print(f"note: {scene.name}'s depth is {scene.meta.get('depth_from', scene.distance_kind)}, not ground truth")
+    pc = scene.point_cloud()
+    pc.save_ply(args.out)
+    print(f"{scene.name}: {len(pc)} points -> {args.out}")
+    return 0
+
+
+def cmd_inspect(args) -> int:
+    from .geometry.pointcloud import PointCloud
+    from .viz import screenshot, show
+
+    path = Path(args.cloud)
+    try:
+        pc = PointCloud.load_ply(path)
+    except FileNotFoundError as e:
+        raise PanoreconInputError(str(e)) from None
+    if args.screenshot:
+        screenshot(pc, args.screenshot, args.color, args.point_size, args.clip_z)
+        print(f"{path}: {len(pc)} points -> {args.screenshot}")
+    else:
+        show(pc, args.color, args.point_size, args.clip_z)
+    return 0
+
+
+def cmd_demo(args) -> int:
+    """The main job on the built-in default scene: render, ground-truth cloud, screenshot."""
+    from .scenes import DEFAULT_SCENE, load_scene
+
+    out = Path(args.out)
+    scene = args.scene or DEFAULT_SCENE
+    loaded = load_scene(scene, args.width)
+    # indoor scenes (no sky) are shown from above with the ceiling cut away
+    clip_z = None if loaded.sky.any() or loaded.distance is None else float(0.5 * loaded.point_cloud().xyz[:, 2].max())
+    steps = [
+        (cmd_render, argparse.Namespace(scene=scene, out=str(out), width=args.width)),
+        (cmd_gt_cloud, argparse.Namespace(scene=scene, out=str(out / "gt_cloud.ply"), width=args.width)),
+        (cmd_inspect, argparse.Namespace(cloud=str(out / "gt_cloud.ply"), screenshot=str(out / "gt_cloud.png"),
+                                         color=None, point_size=2.0, clip_z=clip_z)),
+    ]
+    for fn, ns in steps:
+        fn(ns)
+    return 0
+
+
+# ---------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="panorecon", description=__doc__)
+    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    scenes = sub.add_parser("scenes", help="list the built-in scenes").add_subparsers(dest="what", required=True)
+    scenes.add_parser("list", help="name, synthetic or real, ground truth, description").set_defaults(fn=cmd_scenes_list)
+
+    r = sub.add_parser("render", help="write pano.png, distance.npy (float32 metres, inf = sky) and mask.png")
+    r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--width", type=int, default=None, help="ERP width in pixels (height = width / 2)")
+    r.set_defaults(fn=cmd_render)
+
+    g = sub.add_parser("gt-cloud", help="the ground-truth coloured point cloud from the true distance")
+    g.add_argument("scene")
+    g.add_argument("--out", required=True, help="output .ply")
+    g.add_argument("--width", type=int, default=None)
+    g.set_defaults(fn=cmd_gt_cloud)
+
+    i = sub.add_parser("inspect", help="look at a point cloud with pyvista")
+    i.add_argument("cloud", help="a .ply point cloud")
+    i.add_argument("--screenshot", help="render off-screen to this PNG instead of opening a window")
+    i.add_argument("--color", default=None, help="colour by this per-point scalar (e.g. view_id, error) instead of RGB")
+    i.add_argument("--point-size", type=float, default=2.0)
+    i.add_argument("--clip-z", type=float, default=None, help="hide points above this height (metres), e.g. a ceiling")
+    i.set_defaults(fn=cmd_inspect)
+
+    d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
+    d.add_argument("--out", default="out/demo")
+    d.add_argument("--scene", default=None, help="scene name (default: the built-in default scene)")
+    d.add_argument("--width", type=int, default=1024)
+    d.set_defaults(fn=cmd_demo)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
+    try:
+        return args.fn(args)
+    except PanoreconInputError as e:
+        print(f"panorecon: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
