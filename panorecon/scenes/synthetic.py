@@ -1,0 +1,400 @@
+"""Procedural synthetic scenes with ground truth, one per prompt of the paper's Table 1.
+
+Each scene is a set of Open3D triangle meshes with solid procedural textures (colour is a function of the
+3D surface point, so every viewpoint sees the same colour) and Lambertian shading from a fixed light.
+Rendering is ray casting (Open3D ``RaycastingScene``): ERP panoramas and perspective views from any
+position, with the exact ray distance of each pixel-centre ray. Sky is at infinite distance.
+The panorama centre is the world origin, 1.6 m above the floor / ground.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+
+from ..geometry import PinholeCamera, erp_directions
+from . import procedural as P
+from .base import ErpRender, Scene, ViewRender
+from .registry import SceneSpec, register_scene
+
+EYE_HEIGHT = 1.6  # metres above the floor / ground at the panorama centre
+LIGHT = np.array([0.35, -0.25, 0.9]) / np.linalg.norm([0.35, -0.25, 0.9])
+
+
+@dataclass
+class Part:
+    """One mesh and its texture."""
+
+    mesh: o3d.geometry.TriangleMesh
+    texture: P.Texture
+    emissive: bool = False  # lamps, screens: unshaded
+
+
+@dataclass
+class SyntheticWorld:
+    """Meshes + textures + sky; renders true images and distances from any position."""
+
+    parts: list[Part]
+    outdoor: bool
+    seed: int
+    ambient: float = 0.45
+    _scene: o3d.t.geometry.RaycastingScene | None = field(default=None, repr=False)
+
+    def _raycaster(self) -> o3d.t.geometry.RaycastingScene:
+        if self._scene is None:
+            rc = o3d.t.geometry.RaycastingScene()
+            for part in self.parts:
+                rc.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(part.mesh))
+            self._scene = rc
+        return self._scene
+
+    def cast(self, origin: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rays from ``origin`` [3] along unit ``directions`` [..., 3] -> (rgb float [..., 3] in [0, 1],
+        distance float32 [...] metres, inf for no hit, sky bool [...])."""
+        shape = directions.shape[:-1]
+        d = directions.reshape(-1, 3).astype(np.float64)
+        rays = np.concatenate([np.broadcast_to(np.asarray(origin, float), d.shape), d], 1).astype(np.float32)
+        hit = self._raycaster().cast_rays(o3d.core.Tensor(rays))
+        t = hit["t_hit"].numpy().astype(np.float64)
+        gid = hit["geometry_ids"].numpy()
+        normals = hit["primitive_normals"].numpy().astype(np.float64)
+        sky = ~np.isfinite(t)
+        rgb = np.zeros((len(d), 3))
+        if sky.any():
+            rgb[sky] = P.sky_color(d[sky], self.seed) if self.outdoor else 0.0
+        p = np.asarray(origin, float) + d * np.where(sky, 0.0, t)[:, None]
+        # normals face the viewer, so thin quads shade the same from either side of the room
+        flip = np.einsum("ij,ij->i", normals, d) > 0
+        normals[flip] *= -1
+        for k, part in enumerate(self.parts):
+            sel = (gid == k) & ~sky
+            if not sel.any():
+                continue
+            albedo = part.texture(p[sel], normals[sel])
+            if part.emissive:
+                rgb[sel] = albedo
+            else:
+                lambert = np.clip(normals[sel] @ LIGHT, 0, None)
+                # indoor: a soft second light from below-ish so floors and undersides are not flat
+                fill = 0.25 * np.clip(normals[sel] @ np.array([-0.3, 0.5, -0.2]) / 0.62, 0, None)
+                rgb[sel] = albedo * (self.ambient + (1 - self.ambient) * lambert + (0 if self.outdoor else fill))[:, None]
+        dist = np.where(sky, np.inf, t).astype(np.float32)
+        return np.clip(rgb, 0, 1).reshape(shape + (3,)), dist.reshape(shape), sky.reshape(shape)
+
+    def render_erp(self, height: int, position: np.ndarray | None = None) -> ErpRender:
+        """ERP of ``height`` x 2*height from ``position`` (default: the panorama centre, the origin)."""
+        origin = np.zeros(3) if position is None else np.asarray(position, float)
+        rgb, dist, sky = self.cast(origin, erp_directions(height, 2 * height))
+        return ErpRender(_to_uint8(rgb), dist, sky)
+
+    def render_view(self, camera: PinholeCamera) -> ViewRender:
+        rays = camera.world_rays()
+        rgb, dist, sky = self.cast(camera.position, rays)
+        depth_z = (dist * (rays @ camera.forward)).astype(np.float32)
+        return ViewRender(_to_uint8(rgb), dist, depth_z, sky)
+
+    def free_space_radius(self) -> float:
+        """Distance from the origin to the nearest surface, less a 0.2 m margin (metres)."""
+        d = self._raycaster().compute_distance(o3d.core.Tensor([[0.0, 0.0, 0.0]], dtype=o3d.core.float32)).numpy()[0]
+        return float(max(d - 0.2, 0.0))
+
+    def mesh(self) -> o3d.geometry.TriangleMesh:
+        """All parts as one mesh, vertex colours = texture albedo at the vertices."""
+        out = o3d.geometry.TriangleMesh()
+        for part in self.parts:
+            m = o3d.geometry.TriangleMesh(part.mesh)
+            m.compute_vertex_normals()
+            v, n = np.asarray(m.vertices), np.asarray(m.vertex_normals)
+            m.vertex_colors = o3d.utility.Vector3dVector(np.clip(part.texture(v, n), 0, 1))
+            out += m
+        return out
+
+
+def _to_uint8(rgb: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8)
+
+
+# ---------------------------------------------------------------- room helpers
+def _room(size, floor_tex, wall_tex, ceiling_tex, wall_texes=None) -> list[Part]:
+    """An enclosing room of ``size`` (x, y, z) metres, centred horizontally on the origin, floor at -EYE_HEIGHT."""
+    lx, ly, lz = size
+    x0, y0, z0 = -lx / 2, -ly / 2, -EYE_HEIGHT
+    walls = [
+        P.quad((x0, y0, z0), (lx, 0, 0), (0, 0, lz)),  # y = y0
+        P.quad((x0, -y0, z0), (lx, 0, 0), (0, 0, lz)),  # y = -y0
+        P.quad((x0, y0, z0), (0, ly, 0), (0, 0, lz)),  # x = x0
+        P.quad((-x0, y0, z0), (0, ly, 0), (0, 0, lz)),  # x = -x0
+    ]
+    wall_texes = wall_texes or [wall_tex] * 4
+    return ([Part(P.quad((x0, y0, z0), (lx, 0, 0), (0, ly, 0)), floor_tex),
+             Part(P.quad((x0, y0, z0 + lz), (lx, 0, 0), (0, ly, 0)), ceiling_tex)]
+            + [Part(w, t) for w, t in zip(walls, wall_texes)])
+
+
+def _floor(z: float) -> float:
+    return -EYE_HEIGHT + z
+
+
+# ---------------------------------------------------------------- scenes
+def bedroom(seed: int) -> SyntheticWorld:
+    rng = np.random.default_rng(seed)
+    W, D, H = 4.6, 5.2, 2.7
+    parts = _room((W, D, H), P.wood([0.55, 0.36, 0.2], seed=seed, axis=0),
+                  P.stripes([0.86, 0.8, 0.7], [0.76, 0.68, 0.58], 0.35, seed=seed), P.noisy([0.93, 0.93, 0.9], 0.12, 2, seed))
+    bed_c = (-W / 2 + 1.15, 0.6)
+    parts += [
+        Part(P.box((bed_c[0], bed_c[1], _floor(0.2)), (2.1, 1.7, 0.4)), P.wood([0.4, 0.25, 0.15], seed=seed + 1)),
+        Part(P.box((bed_c[0], bed_c[1], _floor(0.5)), (2.0, 1.6, 0.22)), P.checker([0.85, 0.85, 0.9], [0.55, 0.62, 0.8], 0.2, seed)),
+        Part(P.box((-W / 2 + 0.2, bed_c[1] - 0.4, _floor(0.72)), (0.3, 0.55, 0.18)), P.noisy([0.95, 0.95, 0.95], 0.08, 6, seed)),
+        Part(P.box((-W / 2 + 0.2, bed_c[1] + 0.4, _floor(0.72)), (0.3, 0.55, 0.18)), P.noisy([0.95, 0.9, 0.85], 0.08, 6, seed)),
+        Part(P.box((-W / 2 + 0.06, bed_c[1], _floor(0.75)), (0.1, 1.8, 1.5)), P.wood([0.35, 0.2, 0.12], seed=seed + 2, axis=2)),
+        # nightstands and lamps
+        Part(P.box((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.3)), (0.5, 0.45, 0.6)), P.wood([0.5, 0.32, 0.18], seed=seed + 3)),
+        Part(P.cylinder((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.6)), 0.05, 0.35), P.solid([0.2, 0.2, 0.2])),
+        Part(P.cylinder((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.95)), 0.18, 0.25), P.solid([1.0, 0.93, 0.75]), emissive=True),
+        # wardrobe, desk, chair, rug, window, pictures
+        Part(P.box((W / 2 - 0.35, -D / 2 + 1.0, _floor(1.05)), (0.65, 1.6, 2.1)), P.wood([0.62, 0.45, 0.3], seed=seed + 4, axis=2)),
+        Part(P.box((W / 2 - 0.4, D / 2 - 1.1, _floor(0.74)), (0.7, 1.3, 0.05)), P.wood([0.45, 0.3, 0.2], seed=seed + 5)),
+        Part(P.box((W / 2 - 0.4, D / 2 - 1.1, _floor(0.36)), (0.6, 0.1, 0.72)), P.solid([0.3, 0.22, 0.15])),
+        Part(P.box((W / 2 - 1.0, D / 2 - 1.1, _floor(0.23)), (0.45, 0.45, 0.46)), P.noisy([0.6, 0.15, 0.12], 0.1, 8, seed)),
+        Part(P.box((0.3, -0.6, _floor(0.01)), (1.6, 2.2, 0.02)), P.patches([[0.6, 0.2, 0.2], [0.8, 0.6, 0.3], [0.3, 0.3, 0.5], [0.9, 0.85, 0.7]], 0.25, seed)),
+        Part(P.box((0.4, D / 2 - 0.01, _floor(1.5)), (1.4, 0.03, 1.1)), P.noisy([0.55, 0.75, 0.95], 0.2, 2, seed), emissive=True),
+        Part(P.box((0.4, -D / 2 + 0.02, _floor(1.6)), (0.9, 0.03, 0.6)), P.patches([[0.2, 0.4, 0.2], [0.7, 0.5, 0.2], [0.3, 0.5, 0.7]], 0.15, seed + 6)),
+    ]
+    del rng
+    return SyntheticWorld(parts, outdoor=False, seed=seed)
+
+
+def bathroom(seed: int) -> SyntheticWorld:
+    W, D, H = 3.4, 4.0, 2.6
+    wall_tiles = P.tiles([0.82, 0.86, 0.88], [0.6, 0.6, 0.6], 0.2, seed=seed)
+    parts = _room((W, D, H), P.checker([0.15, 0.15, 0.17], [0.85, 0.85, 0.82], 0.3, seed), wall_tiles, P.noisy([0.96, 0.96, 0.96], 0.04, 3, seed))
+    marble = P.noisy([0.92, 0.9, 0.86], 0.25, 3, seed + 1)
+    parts += [
+        # bathtub along the -x wall: outer shell and water surface
+        Part(P.box((-W / 2 + 0.4, 0.4, _floor(0.28)), (0.75, 1.7, 0.56)), marble),
+        Part(P.box((-W / 2 + 0.4, 0.4, _floor(0.5)), (0.6, 1.5, 0.1)), P.noisy([0.6, 0.8, 0.9], 0.15, 5, seed), emissive=False),
+        # vanity with basin, mirror, tap
+        Part(P.box((W / 2 - 0.3, -0.6, _floor(0.42)), (0.55, 1.2, 0.84)), P.wood([0.3, 0.2, 0.14], seed=seed + 2)),
+        Part(P.box((W / 2 - 0.3, -0.6, _floor(0.87)), (0.6, 1.3, 0.06)), P.noisy([0.15, 0.15, 0.15], 0.3, 4, seed + 3)),
+        Part(P.cylinder((W / 2 - 0.3, -0.6, _floor(0.9)), 0.2, 0.08), P.solid([0.97, 0.97, 0.97])),
+        Part(P.box((W / 2 - 0.02, -0.6, _floor(1.55)), (0.03, 1.1, 0.85)), P.noisy([0.7, 0.75, 0.78], 0.1, 1, seed), emissive=True),
+        Part(P.cylinder((W / 2 - 0.1, -0.6, _floor(0.9)), 0.02, 0.25), P.solid([0.75, 0.7, 0.5])),
+        # toilet
+        Part(P.cylinder((0.8, -D / 2 + 0.45, _floor(0)), 0.22, 0.42), P.solid([0.97, 0.97, 0.96])),
+        Part(P.box((0.8, -D / 2 + 0.12, _floor(0.6)), (0.45, 0.2, 0.4)), P.solid([0.95, 0.95, 0.95])),
+        # towel rail, towels, plant pot, bath mat
+        Part(P.box((-0.4, D / 2 - 0.06, _floor(1.0)), (0.7, 0.06, 0.6)), P.stripes([0.85, 0.5, 0.3], [0.95, 0.9, 0.8], 0.1, axis=2, seed=seed)),
+        Part(P.cylinder((-0.9, -D / 2 + 0.35, _floor(0)), 0.16, 0.35), P.noisy([0.6, 0.35, 0.25], 0.1, 6, seed)),
+        Part(P.sphere((-0.9, -D / 2 + 0.35, _floor(0.6)), 0.28), P.noisy([0.2, 0.5, 0.2], 0.35, 12, seed + 4)),
+        Part(P.box((-0.5, 0.4, _floor(0.01)), (0.6, 0.9, 0.02)), P.checker([0.3, 0.5, 0.6], [0.85, 0.85, 0.8], 0.1, seed)),
+        Part(P.box((0.0, D / 2 - 0.02, _floor(2.05)), (0.6, 0.03, 0.4)), P.noisy([0.6, 0.8, 1.0], 0.1, 2, seed), emissive=True),
+    ]
+    return SyntheticWorld(parts, outdoor=False, seed=seed)
+
+
+def library(seed: int) -> SyntheticWorld:
+    rng = np.random.default_rng(seed)
+    W, D, H = 9.0, 11.0, 4.2
+    parts = _room((W, D, H), P.wood([0.45, 0.28, 0.16], seed=seed, axis=1), P.noisy([0.85, 0.8, 0.68], 0.08, 2, seed),
+                  P.tiles([0.8, 0.78, 0.7], [0.5, 0.45, 0.4], 1.0, 0.05, seed))
+    spines = P.patches([[0.55, 0.1, 0.1], [0.1, 0.25, 0.45], [0.15, 0.4, 0.2], [0.75, 0.6, 0.3], [0.3, 0.15, 0.3],
+                        [0.85, 0.8, 0.7], [0.2, 0.2, 0.2]], np.array([0.05, 0.05, 0.34]), seed)
+    shelf_wood = P.wood([0.35, 0.2, 0.1], seed=seed + 1)
+    # shelving along the long walls and free-standing stacks
+    for side in (-1, 1):
+        for k in range(4):
+            y = -D / 2 + 1.5 + k * 2.6
+            parts.append(Part(P.box((side * (W / 2 - 0.2), y, _floor(1.2)), (0.35, 2.2, 2.4)), spines))
+            parts.append(Part(P.box((side * (W / 2 - 0.2), y, _floor(2.45)), (0.4, 2.3, 0.1)), shelf_wood))
+    for x in (-2.2, 2.2):
+        for y in (-3.5, 3.5):
+            parts.append(Part(P.box((x, y, _floor(1.0)), (2.4, 0.5, 2.0)), spines))
+            parts.append(Part(P.box((x, y, _floor(2.05)), (2.5, 0.55, 0.1)), shelf_wood))
+    # reading tables with chairs and green lamps
+    for y in (-1.0, 1.2):
+        parts.append(Part(P.box((0.0, y, _floor(0.76)), (2.0, 0.9, 0.06)), P.wood([0.4, 0.22, 0.12], seed=seed + 2)))
+        parts.append(Part(P.box((0.0, y, _floor(0.37)), (1.8, 0.1, 0.74)), shelf_wood))
+        parts.append(Part(P.cylinder((0.5 * rng.choice([-1, 1]), y, _floor(0.79)), 0.12, 0.3), P.solid([0.1, 0.45, 0.2])))
+        for x in (-0.6, 0.6):
+            parts.append(Part(P.box((x, y + 0.75, _floor(0.23)), (0.42, 0.42, 0.46)), P.noisy([0.5, 0.12, 0.1], 0.1, 8, seed)))
+    parts.append(Part(P.box((0, -D / 2 + 0.02, _floor(2.8)), (3.0, 0.03, 1.6)), P.noisy([0.6, 0.75, 0.95], 0.2, 2, seed), emissive=True))
+    return SyntheticWorld(parts, outdoor=False, seed=seed)
+
+
+def exhibition_hall(seed: int) -> SyntheticWorld:
+    rng = np.random.default_rng(seed)
+    W, D, H = 14.0, 18.0, 5.0
+    parts = _room((W, D, H), P.tiles([0.75, 0.74, 0.72], [0.45, 0.45, 0.45], 1.2, 0.03, seed),
+                  P.noisy([0.95, 0.95, 0.93], 0.04, 1, seed), P.noisy([0.9, 0.9, 0.92], 0.05, 1, seed))
+    # large posters on the walls
+    for i, (x, y, normal_x) in enumerate([(-W / 2 + 0.03, -5, True), (-W / 2 + 0.03, 3, True), (W / 2 - 0.03, -2, True),
+                                          (W / 2 - 0.03, 5, True), (-3, D / 2 - 0.03, False), (3, -D / 2 + 0.03, False)]):
+        size = (0.04, 2.6, 3.2) if normal_x else (2.6, 0.04, 3.2)
+        pal = rng.uniform(0.1, 0.95, size=(5, 3))
+        parts.append(Part(P.box((x, y, _floor(2.4)), size), P.patches(pal, 0.45, seed + 10 + i, 0.05)))
+    # glass display cases (tinted boxes on dark plinths) and art installations on pedestals
+    for i, (x, y) in enumerate([(-3.5, -3.5), (3.5, -3.0), (-3.0, 4.0), (4.0, 3.5)]):
+        parts.append(Part(P.box((x, y, _floor(0.45)), (1.4, 0.8, 0.9)), P.solid([0.18, 0.18, 0.2])))
+        parts.append(Part(P.box((x, y, _floor(1.3)), (1.3, 0.7, 0.8)), P.noisy([0.7, 0.85, 0.88], 0.12, 3, seed + i)))
+    for i, (x, y) in enumerate([(0.0, -5.0), (-5.0, 0.5), (5.0, 0.0), (0.5, 6.0)]):
+        parts.append(Part(P.cylinder((x, y, _floor(0)), 0.45, 1.0), P.noisy([0.9, 0.9, 0.88], 0.06, 4, seed)))
+        shape = [P.sphere((x, y, _floor(1.55)), 0.5), P.torus((x, y, _floor(1.7)), 0.5, 0.15),
+                 P.box((x, y, _floor(1.6)), (0.6, 0.6, 1.2), yaw=0.6), P.sphere((x, y, _floor(1.4)), 0.35)][i]
+        parts.append(Part(shape, P.noisy(rng.uniform(0.2, 0.9, 3), 0.35, 6, seed + 20 + i)))
+    # spotlights on a ceiling track
+    for x in np.linspace(-5, 5, 6):
+        parts.append(Part(P.box((x, 0, _floor(H - 0.1)), (0.12, 12.0, 0.08)), P.solid([0.15, 0.15, 0.15])))
+        for y in (-4.0, 0.0, 4.0):
+            parts.append(Part(P.cylinder((x, y, _floor(H - 0.45)), 0.12, 0.3), P.solid([1.0, 0.97, 0.85]), emissive=True))
+    return SyntheticWorld(parts, outdoor=False, seed=seed)
+
+
+def mountain(seed: int) -> SyntheticWorld:
+    def h(x, y):
+        r = np.hypot(x, y)
+        p = np.stack([x / 900.0, y / 900.0, np.full_like(x, seed * 0.37)], 1)
+        ridge = 1 - np.abs(2 * P.fbm(p, 6, seed) - 1)  # ridged noise: sharp crests
+        amp = 1500 * np.clip((r - 80) / 1400, 0, 1) ** 1.1
+        local = 3 * (P.fbm(np.stack([x / 40, y / 40, np.zeros_like(x)], 1), 3, seed + 1) - 0.5) * np.clip((r - 8) / 30, 0, 1)
+        return -EYE_HEIGHT + amp * ridge ** 1.5 + local
+
+    terrain = P.heightfield(h, 1.0, 6000.0, 180, 400)
+    terrain.compute_triangle_normals()
+    tex = P.by_height([(-10, (0.35, 0.45, 0.2)), (150, (0.3, 0.4, 0.2)), (350, (0.45, 0.4, 0.33)), (600, (0.55, 0.52, 0.5)),
+                       (800, (0.95, 0.95, 0.97)), (2000, (1.0, 1.0, 1.0))], slope_color=(0.42, 0.38, 0.34), seed=seed)
+    return SyntheticWorld([Part(terrain, tex)], outdoor=True, seed=seed, ambient=0.5)
+
+
+def grassland(seed: int) -> SyntheticWorld:
+    rng = np.random.default_rng(seed)
+
+    def h(x, y):
+        r = np.hypot(x, y)
+        p = np.stack([x / 250.0, y / 250.0, np.full_like(x, 0.5)], 1)
+        return -EYE_HEIGHT + 40 * P.fbm(p, 5, seed) * np.clip((r - 10) / 400, 0, 1) - 0.0
+
+    terrain = P.heightfield(h, 0.5, 4000.0, 160, 360)
+    grass = P.by_height([(-5, (0.35, 0.55, 0.15)), (15, (0.45, 0.6, 0.2)), (40, (0.55, 0.6, 0.3))], seed=seed, jitter=0.6)
+    parts = [Part(terrain, grass)]
+    # yurts and a fence line scattered on the steppe
+    for k in range(5):
+        a, r = rng.uniform(0, 2 * np.pi), rng.uniform(15, 60)
+        x, y = r * np.cos(a), r * np.sin(a)
+        z = float(h(np.array([x]), np.array([y]))[0])
+        parts.append(Part(P.cylinder((x, y, z - 0.3), 2.5, 2.3), P.stripes([0.95, 0.95, 0.92], [0.7, 0.3, 0.25], 1.0, axis=2, seed=seed)))
+        parts.append(Part(P.sphere((x, y, z + 2.0), 2.5), P.noisy([0.9, 0.88, 0.82], 0.1, 2, seed)))
+    for k in range(24):
+        x = -20 + 2.5 * k
+        parts.append(Part(P.box((x, 12.0, float(h(np.array([x]), np.array([12.0]))[0]) + 0.5), (0.12, 0.12, 1.2)), P.wood([0.45, 0.3, 0.18], seed=seed)))
+    return SyntheticWorld(parts, outdoor=True, seed=seed + 1, ambient=0.5)
+
+
+def beach(seed: int) -> SyntheticWorld:
+    rng = np.random.default_rng(seed)
+
+    def sand(x, y):
+        # the shore runs along y; sand rises inland (-x), dips under the sea (+x)
+        dune = 2.5 * P.fbm(np.stack([x / 30, y / 30, np.zeros_like(x)], 1), 4, seed) * np.clip(-x / 40, 0, 1)
+        return -EYE_HEIGHT - 0.1 * x + dune
+
+    def water(x, y):
+        return (-EYE_HEIGHT - 0.35 + 0.15 * np.sin(0.9 * x + 0.2 * y) + 0.08 * np.sin(2.3 * x - 1.1 * y + 1.0)
+                + 0.4 * (P.fbm(np.stack([x / 12, y / 12, np.zeros_like(x)], 1), 3, seed + 3) - 0.5))
+
+    sea = P.heightfield(water, 0.5, 5000.0, 170, 360)
+    # keep only the sea side so the water does not cover the beach
+    v = np.asarray(sea.vertices)
+    keep = v[:, 0] > -2.0
+    sea.remove_vertices_by_mask(~keep)
+    parts = [
+        Part(P.heightfield(sand, 0.5, 3000.0, 150, 360), lambda p, n: P.noisy([0.86, 0.76, 0.55], 0.12, 3, seed)(p, n) * (0.85 + 0.3 * P.fbm(p * 9, 2, seed + 5))[:, None]),
+        Part(sea, lambda p, n: np.clip(np.array([0.1, 0.35, 0.5]) + 0.35 * np.clip(n[:, :1] * 0 + (1 - n[:, 2:3]) * 6, 0, 1)
+                                       + 0.1 * P.fbm(p * 0.5, 3, seed)[:, None], 0, 1)),
+    ]
+    for k in range(4):  # umbrellas and rocks
+        x, y = rng.uniform(-14, -5), rng.uniform(-12, 12)
+        parts.append(Part(P.cylinder((x, y, sand(np.array([x]), np.array([y]))[0] - 0.2), 0.04, 2.2), P.solid([0.9, 0.9, 0.9])))
+        cone = o3d.geometry.TriangleMesh.create_cone(1.2, 0.5, 24).translate((x, y, sand(np.array([x]), np.array([y]))[0] + 1.9))
+        parts.append(Part(cone, P.stripes([0.9, 0.2, 0.2], [0.95, 0.95, 0.9], 0.5, axis=2, seed=seed + k)))
+    for k in range(6):
+        x, y = rng.uniform(6, 25), rng.uniform(-30, 30)
+        parts.append(Part(P.sphere((x, y, -EYE_HEIGHT - 0.5), rng.uniform(0.8, 2.0)), P.noisy([0.35, 0.33, 0.3], 0.3, 2, seed + k)))
+    return SyntheticWorld(parts, outdoor=True, seed=seed, ambient=0.5)
+
+
+def city_plaza(seed: int) -> SyntheticWorld:
+    rng = np.random.default_rng(seed)
+    ground = P.quad((-400, -400, -EYE_HEIGHT), (800, 0, 0), (0, 800, 0))
+    parts = [Part(ground, P.tiles([0.62, 0.58, 0.52], [0.35, 0.33, 0.3], 0.6, 0.04, seed))]
+    fx, fy = 9.0, 0.0  # the fountain
+    stone = P.noisy([0.75, 0.72, 0.66], 0.15, 3, seed + 1)
+    parts += [
+        Part(P.cylinder((fx, fy, -EYE_HEIGHT), 4.0, 0.6), stone),
+        Part(P.cylinder((fx, fy, -EYE_HEIGHT + 0.5), 3.7, 0.05), P.noisy([0.3, 0.55, 0.7], 0.2, 2, seed)),
+        Part(P.cylinder((fx, fy, -EYE_HEIGHT), 0.5, 2.2), stone),
+        Part(P.cylinder((fx, fy, 0.5), 1.5, 0.25), stone),
+        Part(P.sphere((fx, fy, 1.4), 0.6), P.noisy([0.75, 0.85, 0.95], 0.3, 5, seed + 2)),
+    ]
+    for k in range(8):  # stone benches in a ring, street lamps between them
+        a = 2 * np.pi * (k + 0.5) / 8
+        bx, by = fx + 8 * np.cos(a), fy + 8 * np.sin(a)
+        parts.append(Part(P.box((bx, by, -EYE_HEIGHT + 0.23), (0.6, 2.0, 0.45), yaw=a), stone))
+        lx, ly = fx + 11 * np.cos(a + np.pi / 8), fy + 11 * np.sin(a + np.pi / 8)
+        parts.append(Part(P.cylinder((lx, ly, -EYE_HEIGHT), 0.08, 4.0), P.solid([0.15, 0.15, 0.17])))
+        parts.append(Part(P.sphere((lx, ly, -EYE_HEIGHT + 4.2), 0.3), P.solid([1.0, 0.95, 0.8]), emissive=True))
+    for k in range(18):  # buildings around the open square
+        a = 2 * np.pi * k / 18 + rng.uniform(-0.05, 0.05)
+        r = rng.uniform(45, 60)
+        hgt = rng.uniform(12, 40)
+        wall = rng.uniform(0.45, 0.85, 3)
+        parts.append(Part(P.box((r * np.cos(a), r * np.sin(a), -EYE_HEIGHT + hgt / 2), (14, 14, hgt), yaw=a),
+                          P.facade(wall, [0.3, 0.4, 0.5], seed=seed + k)))
+    for k in range(6):  # trees
+        a = 2 * np.pi * k / 6 + 0.3
+        tx, ty = 22 * np.cos(a), 22 * np.sin(a)
+        parts.append(Part(P.cylinder((tx, ty, -EYE_HEIGHT), 0.25, 2.5), P.wood([0.35, 0.25, 0.15], seed=seed, axis=2)))
+        parts.append(Part(P.sphere((tx, ty, 2.0), 2.2), P.noisy([0.2, 0.45, 0.15], 0.35, 3, seed + k)))
+    return SyntheticWorld(parts, outdoor=True, seed=seed, ambient=0.5)
+
+
+# ---------------------------------------------------------------- registry
+DEFAULT_WIDTH = 1024
+SCENE_SEED = 7
+
+_BUILDERS = {
+    "bedroom": (bedroom, "bedroom: bed with pillows and headboard, nightstands and lamp, wardrobe, desk, rug, window (indoor)"),
+    "bathroom": (bathroom, "luxury bathroom: tiled walls, marble tub, vanity with basin and mirror, toilet, plant (indoor)"),
+    "library": (library, "library: wall shelves full of books, free-standing stacks, reading tables and chairs (indoor)"),
+    "exhibition-hall": (exhibition_hall, "indoor exhibition hall: art installations on pedestals, glass display cases, large posters, spotlights"),
+    "mountain": (mountain, "mountain landscape: ridged terrain with rock and snow, sky at infinity (outdoor)"),
+    "grassland": (grassland, "grassland with blue sky: rolling hills, yurts, a fence line, clouds (outdoor)"),
+    "beach": (beach, "waves on the beach: sand dunes, a wavy sea to the horizon, umbrellas and rocks (outdoor)"),
+    "city-plaza": (city_plaza, "outdoor city plaza: central fountain, stone benches, tiled ground, street lamps, buildings, open space"),
+}
+
+_WORLDS: dict[tuple[str, int], SyntheticWorld] = {}
+
+
+def world(name: str, seed: int = SCENE_SEED) -> SyntheticWorld:
+    """The (cached) world of a synthetic scene."""
+    key = (name, seed)
+    if key not in _WORLDS:
+        _WORLDS[key] = _BUILDERS[name][0](seed)
+    return _WORLDS[key]
+
+
+def build_scene(name: str, width: int | None = None, seed: int = SCENE_SEED) -> Scene:
+    """Render a synthetic scene's panorama at ``width`` (default 1024) from the origin."""
+    w = world(name, seed)
+    width = DEFAULT_WIDTH if width is None else width
+    erp = w.render_erp(width // 2)
+    return Scene(name=name, kind="synthetic", description=_BUILDERS[name][1], rgb=erp.rgb, distance=erp.distance,
+                 sky=erp.sky, distance_kind="truth", world=w,
+                 meta={"seed": seed, "parts": len(w.parts), "outdoor": w.outdoor, "eye_height_m": EYE_HEIGHT})
+
+
+for _name, (_fn, _desc) in _BUILDERS.items():
+    register_scene(SceneSpec(_name, "synthetic", True, _desc, lambda width, _n=_name: build_scene(_n, width)))

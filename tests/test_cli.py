@@ -1,0 +1,51 @@
+"""The `panorecon` command end to end on small sizes (in-process: main() returns the exit code)."""
+import numpy as np
+import pytest
+
+from panorecon.cli import main
+from panorecon.io import read_image
+
+
+def test_scenes_list_shows_synthetic_and_real(capsys):
+    assert main(["scenes", "list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("bedroom", "bathroom", "mountain", "grassland", "beach", "library", "exhibition-hall", "city-plaza", "hohonet", "py360-demo"):
+        assert name in out
+    assert out.count("synthetic") >= 8
+
+
+def test_render_gt_cloud_inspect(tmp_path, capsys):
+    assert main(["render", "city-plaza", "--out", str(tmp_path / "r"), "--width", "128"]) == 0
+    pano = read_image(tmp_path / "r" / "pano.png", erp=True)
+    dist = np.load(tmp_path / "r" / "distance.npy")
+    mask = read_image(tmp_path / "r" / "mask.png", unchanged=True)
+    assert pano.shape == (64, 128, 3) and dist.dtype == np.float32 and dist.shape == (64, 128)
+    assert np.isinf(dist).any() and ((mask > 0) == np.isfinite(dist)).all()
+    assert main(["gt-cloud", "city-plaza", "--out", str(tmp_path / "c.ply"), "--width", "128"]) == 0
+    assert main(["inspect", str(tmp_path / "c.ply"), "--screenshot", str(tmp_path / "c.png")]) == 0
+    shot = read_image(tmp_path / "c.png")
+    assert shot.std() > 5  # not a blank image
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["render", "atlantis", "--out", "X"], "unknown scene 'atlantis'"),
+    (["render", "bedroom", "--out", "X", "--width", "20000"], "--width 20000"),
+    (["render", "missing.png", "--out", "X"], "missing.png: no such file"),
+    (["gt-cloud", "py360-demo", "--out", "X/c.ply"], "has no depth"),
+    (["inspect", "nothing.ply", "--screenshot", "X/s.png"], "nothing.ply"),
+])
+def test_bad_input_gives_one_clear_error_and_writes_nothing(tmp_path, monkeypatch, capsys, argv, needle):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1
+    assert not (tmp_path / "X").exists() or not any((tmp_path / "X").iterdir())
+
+
+def test_not_two_to_one_image(tmp_path, capsys):
+    from panorecon.io import write_image
+
+    write_image(tmp_path / "square.png", np.zeros((32, 32, 3), np.uint8))
+    assert main(["render", str(tmp_path / "square.png"), "--out", str(tmp_path / "o")]) == 2
+    assert "not an equirectangular panorama" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
