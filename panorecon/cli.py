@@ -95,6 +95,46 @@ def cmd_demo(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------- teachers, sources, points
+def cmd_teachers_list(args) -> int:
+    from .teachers import list_teachers
+
+    for spec, desc in list_teachers():
+        print(f"{spec:<34}  {desc}")
+    return 0
+
+
+def cmd_sources_list(args) -> int:
+    from .sources import list_sources
+
+    for s in list_sources():
+        print(f"{s.name:<12}  {s.description}")
+    return 0
+
+
+def cmd_points(args) -> int:
+    from .io import write_json
+    from .scenes import load_scene
+    from .sources import get_source, run_source
+
+    spec = get_source(args.source)
+    if spec.uses_teacher and not args.teacher:
+        raise PanoreconInputError(f"source {args.source!r} needs --teacher (see `panorecon teachers list`)")
+    scene = load_scene(args.scene, args.width)
+    pc, report = run_source(scene, args.source, args.teacher, args.views, view_size=args.view_size)
+    pc.save_ply(args.out)
+    if args.report:
+        write_json(args.report, report)
+    depth = report.get("depth")
+    d = (f"AbsRel {depth['abs_rel']:.4f}, delta1 {depth['delta1']:.3f}" if isinstance(depth, dict)
+         and isinstance(depth.get("abs_rel"), float) else str(depth))
+    pts = report["points"]
+    chamfer = f"{pts['chamfer']:.4f} m" if isinstance(pts.get("chamfer"), float) else pts.get("chamfer")
+    print(f"{scene.name} / {args.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}, "
+          f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {args.out}")
+    return 0
+
+
 # ---------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="panorecon", description=__doc__)
@@ -123,6 +163,22 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--point-size", type=float, default=2.0)
     i.add_argument("--clip-z", type=float, default=None, help="hide points above this height (metres), e.g. a ceiling")
     i.set_defaults(fn=cmd_inspect)
+
+    tl = sub.add_parser("teachers", help="depth teachers").add_subparsers(dest="what", required=True)
+    tl.add_parser("list", help="teacher specs").set_defaults(fn=cmd_teachers_list)
+    sl = sub.add_parser("sources", help="point sources").add_subparsers(dest="what", required=True)
+    sl.add_parser("list", help="registered point sources").set_defaults(fn=cmd_sources_list)
+
+    pt = sub.add_parser("points", help="build an initial point cloud with a point source and report its error")
+    pt.add_argument("scene")
+    pt.add_argument("--source", required=True, help="see `panorecon sources list`")
+    pt.add_argument("--teacher", default=None, help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S]")
+    pt.add_argument("--views", type=int, default=None, help="number of views (fibonacci, latlong)")
+    pt.add_argument("--view-size", type=int, default=None, help="perspective view size in pixels (default: ERP width / 4, at most 512)")
+    pt.add_argument("--width", type=int, default=None, help="ERP width")
+    pt.add_argument("--out", required=True, help="output .ply")
+    pt.add_argument("--report", default=None, help="output report .json")
+    pt.set_defaults(fn=cmd_points)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")

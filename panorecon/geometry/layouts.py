@@ -127,7 +127,7 @@ def make_layout(name: str, n_views: int | None = None, fov_deg: float | None = N
     if name in ("icosahedral", "icosahedron-vertices", "cube") and n_views not in (None, len(dirs)):
         raise ValueError(f"layout {name!r} has exactly {len(dirs)} views, got n_views={n_views}")
     if name == "cube" and fov_deg is None:
-        fov_deg = 90.0
+        fov_deg = 100.0  # 90 degrees tiles the sphere with no overlap, leaving the faces' relative scales unknown
     return Layout(name, dirs, default_fov_deg(dirs) if fov_deg is None else float(fov_deg))
 
 

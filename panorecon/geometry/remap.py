@@ -43,13 +43,18 @@ def sample_erp(erp: np.ndarray, directions: np.ndarray, interpolation: str = "li
     only to samples that touch it.
     """
     H, W = erp.shape[:2]
-    rows, cols = direction_to_erp_pixel(directions, H, W)
+    rows, cols = direction_to_erp_pixel(directions.reshape(-1, 3), H, W)
     cols = np.mod(cols + 0.5, W) - 0.5  # fold lon = pi exactly onto the left edge
-    padded = pad_erp(erp)
-    map_x = (cols + _PAD).astype(np.float32)
-    map_y = (rows + _PAD).astype(np.float32)
-    out = cv2.remap(padded, map_x, map_y, _interp_flag(interpolation), borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(directions.shape[:-1] + erp.shape[2:])
+    # cv2.remap wants 2-D maps under 32767 per side: lay the samples out in rows of 4096
+    n = len(rows)
+    m = -(-max(n, 1) // 4096) * 4096
+    map_x = np.zeros(m, np.float32)
+    map_y = np.zeros(m, np.float32)
+    map_x[:n] = cols + _PAD
+    map_y[:n] = rows + _PAD
+    out = cv2.remap(pad_erp(erp), map_x.reshape(-1, 4096), map_y.reshape(-1, 4096), _interp_flag(interpolation),
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape((m,) + erp.shape[2:])[:n].reshape(directions.shape[:-1] + erp.shape[2:])
 
 
 def erp_to_perspective(erp: np.ndarray, camera: PinholeCamera, interpolation: str = "linear") -> np.ndarray:

@@ -1,0 +1,329 @@
+"""The method's fusion (paper §2.4): per-view depth -> one panoramic ray-distance map by least squares in
+log-distance, with gradient-matching (eq. 16) and Laplacian (eq. 17) terms.
+
+Unknowns: x = log ray distance per ERP pixel, and s_i = log-scale per view (relative teachers).
+Energy, with c_i(p) = cos^2 of the angle between pixel p's ray and view i's optical axis and a(p) = cos(lat)
+the pixel's area weight::
+
+    E(x, s) = w_grad * sum_i sum_(p,q) a c_i (x_q - x_p - (l_i(q) - l_i(p)))^2     horizontal (wrapping) and vertical pairs
+            + w_lap  * sum_i sum_p     a c_i (Lap x (p) - Lap l_i (p))^2          5-point Laplacian, all taps seen by view i
+            + w_data * sum_i sum_p     a c_i (x_p - l_i(p) - s_i)^2                weak anchor: fixes the constant
+
+The gradient and Laplacian terms are invariant to each view's scale (a log-scale is an additive
+constant), so per-view scale only enters the data term. Summing over views, each pair / pixel carries one
+aggregated weight and target, so the system is H*W x H*W whatever the number of views. Its normal matrix
+is sparse SPD (13-point stencil), solved coarse to fine: a direct solve at the coarsest level, then
+conjugate gradients preconditioned by smoothed-aggregation algebraic multigrid (pyamg), warm-started from
+the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent),
+its gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
+Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..geometry import ViewDepth, erp_directions, sample_erp
+from .affine import align_affine_views
+from .operators import horizontal_pairs, laplacian_centres, laplacian_matrix, vertical_pairs
+from .warp import ErpObservation, warp_to_erp
+
+
+@dataclass
+class FusionConfig:
+    """Weights and solver settings of ``fuse_views``."""
+
+    w_grad: float = 1.0  # gradient-matching weight (eq. 16)
+    w_lap: float = 0.25  # Laplacian weight (eq. 17)
+    w_data: float = 0.02  # zero-order anchor weight
+    levels: int | None = None  # pyramid levels; None: halve until the coarsest ERP height is <= 64
+    tol: float = 1e-5  # relative residual at which CG stops, per level
+    maxiter: int = 300  # CG iterations per level at most
+    scale_iters: int = 2  # per-view scale updates per level (levels up to scale_max_height only)
+    scale_max_height: int = 128  # finer levels keep the per-view scales of the coarser ones
+    coarse_tol: float = 1e-3  # CG tolerance on every level but the finest
+    preconditioner: str = "amg"  # "amg" (pyamg smoothed aggregation) or "jacobi"
+    area_weight: bool = True  # weight equations by cos(latitude), the ERP pixel's solid angle
+    extra: dict = field(default_factory=dict)
+
+    def check(self) -> None:
+        for name in ("w_grad", "w_lap", "w_data"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"FusionConfig.{name}={v!r}: expected a finite weight >= 0")
+        if not self.w_data > 0:
+            raise ValueError(f"FusionConfig.w_data={self.w_data!r}: expected > 0 (it fixes the unknown constant)")
+        if self.preconditioner not in ("amg", "jacobi"):
+            raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
+        if not (self.tol > 0 and self.maxiter >= 1):
+            raise ValueError(f"FusionConfig tol={self.tol}, maxiter={self.maxiter}: expected tol > 0, maxiter >= 1")
+
+
+@dataclass
+class FusionResult:
+    """distance: [H, W] float32 ray distance (NaN where no view saw the pixel); seen: [H, W] bool;
+    view_scale: [V] multiplicative factor applied to each view's distance; view_shift: [V] shift applied in
+    the view's own space (affine views; 0 otherwise); report: solver statistics."""
+
+    distance: np.ndarray
+    seen: np.ndarray
+    view_scale: np.ndarray
+    view_shift: np.ndarray
+    report: dict
+
+
+def _check_views(views: Sequence[ViewDepth], height: int, width: int) -> None:
+    if len(views) == 0:
+        raise ValueError("fuse_views: no views given; expected at least one ViewDepth")
+    if width != 2 * height or height < 2:
+        raise ValueError(f"fuse_views: ERP size {width}x{height}: expected width = 2 x height >= 4")
+
+
+def pyramid_heights(height: int, levels: int | None) -> list[int]:
+    """ERP heights from coarsest to finest; each level halves the next (kept even)."""
+    hs = [height]
+    while (levels is None and hs[-1] > 64) or (levels is not None and len(hs) < levels):
+        nxt = hs[-1] // 2
+        if nxt < 4:
+            break
+        hs.append(nxt)
+    return hs[::-1]
+
+
+@dataclass
+class _Level:
+    height: int
+    width: int
+    obs: list[ErpObservation]
+    seen: np.ndarray  # [N] bool
+
+
+def _observe(views, dists, height) -> _Level:
+    width = 2 * height
+    dirs = erp_directions(height, width).reshape(-1, 3)
+    obs = [warp_to_erp(v, height, width, dirs, d) for v, d in zip(views, dists)]
+    seen = np.zeros(height * width, bool)
+    for o in obs:
+        seen[o.index] = True
+    return _Level(height, width, obs, seen)
+
+
+def _row_area(height: int, width: int, on: bool) -> np.ndarray:
+    lat = (0.5 - (np.arange(height) + 0.5) / height) * np.pi
+    a = np.cos(lat) if on else np.ones(height)
+    return np.repeat(a, width)
+
+
+def _assemble(level: _Level, cfg: FusionConfig):
+    """Normal matrix A and the scale-independent part of b, plus per-view data weights."""
+    H, W = level.height, level.width
+    N = H * W
+    area = _row_area(H, W, cfg.area_weight)
+    hp, hq = horizontal_pairs(H, W)
+    vp, vq = vertical_pairs(H, W)
+    lap = laplacian_matrix(H, W)
+    lc = laplacian_centres(H, W)
+    wgx, tgx = np.zeros(N), np.zeros(N)
+    wgy, tgy = np.zeros(len(vp)), np.zeros(len(vp))
+    wl, tl = np.zeros(H * W), np.zeros(H * W)  # indexed by the centre pixel
+    data_w = []
+    for o in level.obs:
+        if len(o.index) == 0:
+            data_w.append(np.zeros(0))
+            continue
+        # work on the band of rows the view touches (plus one row each side): full width keeps the seam wrap
+        r0, r1 = max(o.index.min() // W - 1, 0), min(o.index.max() // W + 1, H - 1)
+        band = slice(r0 * W, (r1 + 1) * W)
+        hb = r1 - r0 + 1
+        L = np.full((hb, W), np.nan)
+        C = np.zeros((hb, W))
+        L.ravel()[o.index - r0 * W] = o.log_distance
+        C.ravel()[o.index - r0 * W] = o.confidence
+        # pairs / stencils with an unseen tap get weight 0 (no masked compaction: whole-band arithmetic)
+        Lr = np.roll(L, -1, axis=1)
+        _accumulate(wgx[band], tgx[band], Lr - L, np.minimum(C, np.roll(C, -1, axis=1)))
+        if hb > 1:
+            _accumulate(wgy[r0 * W:r1 * W], tgy[r0 * W:r1 * W], L[1:] - L[:-1], np.minimum(C[1:], C[:-1]))
+        if hb > 2:
+            lv = (Lr + np.roll(L, 1, axis=1) - 4 * L)[1:-1] + L[:-2] + L[2:]
+            _accumulate(wl[(r0 + 1) * W:r1 * W], tl[(r0 + 1) * W:r1 * W], lv, C[1:-1])
+        data_w.append(cfg.w_data * o.confidence * area[o.index])
+    # Laplacian rows exist for interior rows only
+    wl, tl = wl[lc], tl[lc]
+    area_v = 0.5 * (area[vp] + area[vq])
+    diag = np.zeros(N)
+    for o, w in zip(level.obs, data_w):
+        diag += np.bincount(o.index, w, minlength=N)
+    diag[~level.seen] = 1.0  # unseen pixels carry no equation: decouple them (x = 0 there, reported as NaN)
+    # one COO assembly of gradient edges + diagonal, one sparse product for the Laplacian term, one sum
+    wx, wy = cfg.w_grad * wgx * area, cfg.w_grad * wgy * area_v
+    rows = np.concatenate([hp, hq, hp, hq, vp, vq, vp, vq, np.arange(N)])
+    cols = np.concatenate([hp, hq, hq, hp, vp, vq, vq, vp, np.arange(N)])
+    vals = np.concatenate([wx, wx, -wx, -wx, wy, wy, -wy, -wy, diag])
+    A = sp.csr_matrix((vals, (rows, cols)), shape=(N, N))
+    if cfg.w_lap > 0:
+        A = A + cfg.w_lap * (lap.T @ sp.diags(wl * area[lc]) @ lap)
+    # b0 = D^T (weighted gradient targets) + w_lap Lap^T (weighted Laplacian targets)
+    tx, ty = cfg.w_grad * tgx * area, cfg.w_grad * tgy * area_v
+    b0 = (np.bincount(hq, tx, minlength=N) - np.bincount(hp, tx, minlength=N)
+          + np.bincount(vq, ty, minlength=N) - np.bincount(vp, ty, minlength=N)
+          + cfg.w_lap * (lap.T @ (tl * area[lc])))
+    return A, b0, data_w
+
+
+def _accumulate(weight_sum: np.ndarray, target_sum: np.ndarray, value: np.ndarray, conf: np.ndarray) -> None:
+    """weight_sum += conf, target_sum += conf * value where value is finite (in place, flat views)."""
+    ok = np.isfinite(value).ravel()
+    c = np.where(ok, conf.ravel(), 0.0)
+    weight_sum += c
+    target_sum += c * np.where(ok, value.ravel(), 0.0)
+
+
+def _data_rhs(level: _Level, data_w, s: np.ndarray) -> np.ndarray:
+    N = level.height * level.width
+    b = np.zeros(N)
+    for o, w, si in zip(level.obs, data_w, s):
+        b += np.bincount(o.index, w * (o.log_distance + si), minlength=N)
+    return b
+
+
+def _update_scales(level: _Level, data_w, x: np.ndarray, metric: bool) -> np.ndarray:
+    """Closed-form s_i = weighted mean of (x - l_i) over view i's pixels; gauge mean(s) = 0."""
+    V = len(level.obs)
+    if metric:
+        return np.zeros(V)
+    s = np.zeros(V)
+    has = np.zeros(V, bool)
+    for i, (o, w) in enumerate(zip(level.obs, data_w)):
+        if w.sum() > 0:
+            s[i] = np.sum(w * (x[o.index] - o.log_distance)) / w.sum()
+            has[i] = True
+    if has.any():
+        s[has] -= s[has].mean()
+    return s
+
+
+def _initial_scales(level: _Level, metric: bool) -> np.ndarray:
+    """Per-view log-scales from pairwise overlaps: s_i - s_j = median(l_j - l_i) in least squares, mean(s) = 0."""
+    V = len(level.obs)
+    if metric or V == 1:
+        return np.zeros(V)
+    N = level.height * level.width
+    dense = [o.dense(N) for o in level.obs]
+    rows, rhs = [], []
+    for i in range(V):
+        for j in range(i + 1, V):
+            both = np.isfinite(dense[i]) & np.isfinite(dense[j])
+            if both.sum() >= 4:
+                rows.append((i, j))
+                rhs.append(np.median(dense[j][both] - dense[i][both]))
+    M = np.zeros((len(rows) + 1, V))
+    for k, (i, j) in enumerate(rows):
+        M[k, i], M[k, j] = 1.0, -1.0
+    M[-1] = 1.0  # gauge: mean(s) = 0
+    s = np.linalg.lstsq(M, np.array(rhs + [0.0]), rcond=None)[0]
+    return s
+
+
+def _preconditioner(A, cfg: FusionConfig):
+    if cfg.preconditioner == "amg":
+        import pyamg
+
+        ml = pyamg.smoothed_aggregation_solver(A, symmetry="symmetric", max_coarse=400, coarse_solver="splu", smooth=None)
+        return ml.aspreconditioner(cycle="V")
+    return sp.diags(1.0 / A.diagonal())
+
+
+def _solve(A, b, x0, tol: float, maxiter: int, M):
+    """Solve A x = b (M: preconditioner, or None for a direct solve); returns (x, iterations, relative residual)."""
+    bn = np.linalg.norm(b) or 1.0
+    if M is None:
+        x = spla.spsolve(A.tocsc(), b)
+        return x, 0, float(np.linalg.norm(A @ x - b) / bn)
+    its = [0]
+
+    def count(_):
+        its[0] += 1
+
+    x, _info = spla.cg(A, b, x0=x0, rtol=tol, atol=0.0, maxiter=maxiter, M=M, callback=count)
+    return x, its[0], float(np.linalg.norm(A @ x - b) / bn)
+
+
+def _upsample(x: np.ndarray, seen: np.ndarray, h: int, H: int) -> np.ndarray:
+    """Bilinear resampling of a coarse ERP solution onto a finer ERP grid, continuous across seam and poles."""
+    grid = x.reshape(h, 2 * h).copy()
+    if (~seen).any() and seen.any():
+        grid[~seen.reshape(h, 2 * h)] = np.median(x[seen])
+    return sample_erp(grid, erp_directions(H, 2 * H), "linear").ravel()
+
+
+def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: FusionConfig | None = None) -> FusionResult:
+    """Fuse per-view depth maps into one ERP ray-distance map (the §2.4 solve; see the module docstring).
+
+    views: perspective depths at the panorama centre (camera positions are ignored: the panorama's rays
+    all start at the origin). Returns a ``FusionResult`` whose ``report`` lists per-level sizes,
+    CG iterations, relative residuals and seconds.
+    """
+    cfg = config or FusionConfig()
+    cfg.check()
+    _check_views(views, height, width)
+    t0 = time.perf_counter()
+    metric = all(v.metric for v in views)
+    affine = any(v.affine for v in views)
+    if affine:
+        dists, view_shift, affine_report = align_affine_views(views)
+    else:
+        dists, view_shift, affine_report = [v.to_distance() for v in views], np.zeros(len(views)), None
+    report = {"solver": f"pcg+{cfg.preconditioner}, coarse-to-fine", "levels": [], "affine_alignment": affine_report}
+    x = None
+    s = None
+    prev_h = None
+    prev_seen = None
+    for li, h in enumerate(pyramid_heights(height, cfg.levels)):
+        tl = time.perf_counter()
+        level = _observe(views, dists, h)
+        A, b0, data_w = _assemble(level, cfg)
+        if s is None:
+            s = _initial_scales(level, metric)
+        if x is None:
+            wsum = sum(np.bincount(o.index, w, minlength=h * 2 * h) for o, w in zip(level.obs, data_w))
+            x = np.where(wsum > 0, _data_rhs(level, data_w, s) / np.maximum(wsum, 1e-300), 0.0)
+        else:
+            x = _upsample(x, prev_seen, prev_h, h)
+        its_total, resid = 0, float("nan")
+        direct = li == 0 and h * 2 * h <= 40_000
+        M = None if direct else _preconditioner(A, cfg)
+        finest = h == height
+        tol = cfg.tol if finest else max(cfg.tol, cfg.coarse_tol)
+        for _ in range(max(1, cfg.scale_iters) if (h <= cfg.scale_max_height or li == 0) else 1):
+            x, its, resid = _solve(A, b0 + _data_rhs(level, data_w, s), x, tol, cfg.maxiter, M)
+            its_total += its
+            if h > cfg.scale_max_height and li > 0:
+                break
+            s_new = _update_scales(level, data_w, x, metric)
+            converged = np.abs(s_new - s).max() < 1e-4
+            s = s_new
+            if converged:
+                break
+        report["levels"].append({"height": h, "width": 2 * h, "unknowns": h * 2 * h, "iterations": its_total,
+                                 "residual": resid, "seconds": time.perf_counter() - tl, "direct": direct})
+        prev_h, prev_seen = h, level.seen
+    seen = prev_seen.reshape(height, width)
+    xs = x.reshape(height, width)
+    if not np.isfinite(xs[seen]).all():
+        raise ValueError("fuse_views: the solve produced non-finite log-distances; check the weights and the teacher's depth range")
+    distance = np.full((height, width), np.nan, np.float32)
+    with np.errstate(over="ignore"):
+        distance[seen] = np.exp(xs[seen]).astype(np.float32)
+    if not np.isfinite(distance[seen]).all():
+        raise ValueError("fuse_views: fused distances overflow float32 (log-distance beyond 88); check the teacher's depth range")
+    report.update(iterations=[lv["iterations"] for lv in report["levels"]], residual=report["levels"][-1]["residual"],
+                  seconds=time.perf_counter() - t0, views=len(views), metric=metric, affine=affine)
+    return FusionResult(distance, seen, np.exp(s), view_shift, report)

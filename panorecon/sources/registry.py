@@ -1,0 +1,61 @@
+"""The point-source registry: every initialization is a named source returning the same ``PointCloud``.
+
+In-tree sources register with ``@register_source(name, description)``; third-party packages add theirs
+through the ``panorecon.sources`` entry-point group (the entry point loads a callable of the same
+signature, registered under the entry point's name).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Callable
+
+from ..io import PanoreconInputError
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """fn(scene, teacher, views, fusion_config, view_size) -> (PointCloud, stage_seconds dict, info dict)."""
+
+    name: str
+    description: str
+    fn: Callable
+    uses_teacher: bool = True
+
+
+_SOURCES: dict[str, SourceSpec] = {}
+_loaded_entry_points = False
+
+
+def register_source(name: str, description: str, uses_teacher: bool = True):
+    def deco(fn):
+        if name in _SOURCES:
+            raise ValueError(f"point source {name!r} is registered twice")
+        _SOURCES[name] = SourceSpec(name, description, fn, uses_teacher)
+        return fn
+
+    return deco
+
+
+def _load_entry_points() -> None:
+    global _loaded_entry_points
+    if _loaded_entry_points:
+        return
+    _loaded_entry_points = True
+    for ep in entry_points(group="panorecon.sources"):
+        if ep.name not in _SOURCES:
+            _SOURCES[ep.name] = SourceSpec(ep.name, f"plug-in from {ep.value}", ep.load())
+
+
+def list_sources() -> list[SourceSpec]:
+    from . import builtin  # noqa: F401  (registers the built-in sources)
+
+    _load_entry_points()
+    return list(_SOURCES.values())
+
+
+def get_source(name: str) -> SourceSpec:
+    names = {s.name: s for s in list_sources()}
+    if name not in names:
+        raise PanoreconInputError(f"unknown point source {name!r}; expected one of {', '.join(sorted(names))}")
+    return names[name]

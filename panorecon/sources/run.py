@@ -1,0 +1,95 @@
+"""Run one point source on one scene with one teacher, timed, and measured against the truth."""
+from __future__ import annotations
+
+import math
+import resource
+import time
+
+import numpy as np
+
+from ..fusion.affine import align_affine_views
+from ..metrics import depth_metrics, point_metrics
+from ..teachers import get_teacher
+from ..teachers.base import true_view_distance
+from .registry import get_source
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MB; Linux reports ru_maxrss in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _per_view_abs_rel(scene, view_depths) -> float:
+    """Median over views of each view's own AbsRel against its true distance: median-aligned per view for
+    scale-only views; for affine views after a per-view least-squares scale+shift fit to the truth in the
+    view's own space (the best one view can do)."""
+    rels = []
+    for v in view_depths:
+        true_d, sky = true_view_distance(scene, v.camera)
+        if v.affine:
+            truth_raw = true_d / v.camera.z_to_distance_factor() if v.kind == "z" else true_d
+            if v.kind == "disparity":
+                truth_raw = v.camera.z_to_distance_factor() / true_d
+            ok = v.valid & np.isfinite(truth_raw) & ~sky
+            if ok.sum() < 2:
+                continue
+            A = np.stack([v.depth[ok], np.ones(ok.sum())], 1).astype(np.float64)
+            a, b = np.linalg.lstsq(A, truth_raw[ok].astype(np.float64), rcond=None)[0]
+            fitted = np.full(v.depth.shape, np.nan)
+            fitted[ok] = a * v.depth[ok] + b
+            pred = fitted if v.kind == "distance" else (fitted * v.camera.z_to_distance_factor() if v.kind == "z"
+                                                        else v.camera.z_to_distance_factor() / fitted)
+            m = depth_metrics(pred, true_d, "none", ~sky)
+        else:
+            m = depth_metrics(v.to_distance(), true_d, "none" if v.metric else "median", ~sky)
+        if m["pixels"]:
+            rels.append(m["abs_rel"])
+    return float(np.median(rels)) if rels else float("nan")
+
+
+def _finite_or_na(d: dict, reason: str) -> dict:
+    return {k: (v if not (isinstance(v, float) and not math.isfinite(v)) else f"n/a: {reason}") for k, v in d.items()}
+
+
+def run_source(scene, source_name: str, teacher_spec: str | None, views: int | None = None, fusion_config=None,
+               view_size: int | None = None):
+    """-> (PointCloud, report dict). The report: source, teacher, scene, views, seconds per stage and total,
+    peak_rss_mb (process peak so far), fusion solver report, depth and point metrics against the truth
+    (median-aligned unless the teacher is metric; the cloud is scaled by the same factor before point
+    metrics) or 'n/a: <reason>', and the median per-view teacher AbsRel."""
+    t_total = time.perf_counter()
+    spec = get_source(source_name)
+    teacher = get_teacher(teacher_spec) if spec.uses_teacher else None
+    if spec.uses_teacher and teacher is None:
+        raise ValueError(f"source {source_name!r} needs a teacher")
+    pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size)
+    t = time.perf_counter()
+    report = {"source": source_name, "teacher": teacher.name if teacher else None, "scene": scene.name,
+              "erp": [scene.width, scene.height], "views": info.get("views"), "view_size": info.get("view_size"),
+              "fov_deg": info.get("fov_deg")}
+    if "fusion" in info:
+        report["fusion"] = info["fusion"]
+    metric = bool(info.get("view_depths") and all(v.metric for v in info["view_depths"]))
+    distance = info.get("distance")
+    if not scene.has_ground_truth:
+        reason = f"scene {scene.name!r} has no ground truth"
+        report["depth"] = f"n/a: {reason}"
+        report["points"] = {"count": len(pc), **{k: f"n/a: {reason}" for k in ("accuracy", "completeness", "chamfer", "fscore")}}
+    else:
+        scale = 1.0
+        if distance is not None:
+            dm = depth_metrics(distance, scene.distance, "none" if metric else "median", ~scene.sky)
+            scale = dm["scale"] if math.isfinite(dm["scale"]) else 1.0
+            report["depth"] = _finite_or_na(dm, "no pixel with both prediction and truth")
+        else:
+            report["depth"] = "n/a: the source gives no depth map"
+        truth = scene.point_cloud()
+        report["points"] = point_metrics(pc.xyz * scale, truth.xyz) if len(pc) else {"count": 0}
+        report["points"]["scale_applied"] = scale
+        if info.get("view_depths"):
+            report["teacher_per_view_abs_rel_median"] = _per_view_abs_rel(scene, info["view_depths"])
+    seconds["metrics"] = time.perf_counter() - t
+    seconds["total"] = time.perf_counter() - t_total
+    report["seconds"] = seconds
+    report["peak_rss_mb"] = peak_rss_mb()
+    return pc, report

@@ -1,0 +1,36 @@
+"""Monocular depth teachers behind one interface: ``sim:<profile>``, ``onnx:<path>``, ``file:<path>``."""
+from __future__ import annotations
+
+from .base import ErpDepth, Teacher
+from .sim import PROFILES, SimProfile, SimTeacher
+from ..io import PanoreconInputError
+
+
+def get_teacher(spec: str, seed: int = 0) -> Teacher:
+    """Parse a teacher spec: ``sim:<profile>``, ``onnx:<model.onnx>`` or ``file:<path>[?scale=S&metric=1]``."""
+    kind, _, arg = spec.partition(":")
+    if kind == "sim":
+        if arg not in PROFILES:
+            raise PanoreconInputError(f"teacher {spec!r}: unknown simulated profile; expected one of "
+                                      + ", ".join(f"sim:{p}" for p in PROFILES))
+        return SimTeacher(PROFILES[arg], seed)
+    if kind == "onnx" and arg:
+        from .onnx_teacher import OnnxTeacher
+
+        return OnnxTeacher(arg)
+    if kind == "file" and arg:
+        from .file_teacher import FileTeacher
+
+        return FileTeacher(arg)
+    raise PanoreconInputError(f"teacher {spec!r}: expected sim:<profile>, onnx:<model.onnx> or file:<depth.png|.npy>")
+
+
+def list_teachers() -> list[tuple[str, str]]:
+    """(spec, description) of every teacher kind."""
+    rows = [(f"sim:{p.name}", f"simulated ({p.description})") for p in PROFILES.values()]
+    rows += [("onnx:<model.onnx>", "an ONNX monocular depth model with a <model>.json config (needs onnxruntime)"),
+             ("file:<depth>[?scale=S&metric=1]", "a precomputed ERP ray-distance map (16-bit PNG x scale, or .npy metres)")]
+    return rows
+
+
+__all__ = ["ErpDepth", "Teacher", "SimProfile", "SimTeacher", "PROFILES", "get_teacher", "list_teachers"]

@@ -1,0 +1,58 @@
+"""The teacher interface: a monocular depth model that gives depth for perspective views and for the ERP."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+
+from ..geometry import PinholeCamera, ViewDepth, erp_directions
+
+
+@dataclass
+class ErpDepth:
+    """A teacher's depth for the whole ERP image: depth [H, W] float32 of ``kind`` ("distance" or
+    "disparity" = 1 / distance), valid [H, W] bool; affine / metric as in ``ViewDepth``."""
+
+    depth: np.ndarray
+    kind: str
+    valid: np.ndarray
+    affine: bool = False
+    metric: bool = False
+
+    def to_distance(self) -> np.ndarray:
+        """Ray distance [H, W] float32, NaN where invalid. An affine output's unknown shift is taken as 0:
+        one image alone cannot resolve it."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = self.depth.astype(np.float64) if self.kind == "distance" else 1.0 / self.depth.astype(np.float64)
+        d[~self.valid | ~np.isfinite(d) | ~(d > 0)] = np.nan
+        return d.astype(np.float32)
+
+
+class Teacher(Protocol):
+    """``name`` is the spec it was made from (e.g. ``sim:relative``)."""
+
+    name: str
+
+    def predict_views(self, scene, cameras: Sequence[PinholeCamera]) -> list[ViewDepth]: ...
+
+    def predict_erp(self, scene) -> ErpDepth: ...
+
+
+def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
+    """(ray distance [h, w] float32 with inf for sky, sky [h, w] bool) of a view at the panorama centre, from
+    the scene's world when it has one, else sampled (nearest) from its true ERP distance."""
+    if scene.world is not None:
+        r = scene.world.render_view(camera)
+        return r.distance, r.sky
+    if scene.distance is None or scene.distance_kind != "truth":
+        raise ValueError(f"scene {scene.name!r} has no ground-truth depth (its depth is {scene.distance_kind!r}); "
+                         "simulated teachers need a synthetic scene")
+    from ..geometry import sample_erp
+
+    d = sample_erp(scene.distance, camera.world_rays(), "nearest")
+    sky = sample_erp(scene.sky.astype(np.uint8), camera.world_rays(), "nearest").astype(bool)
+    return d.astype(np.float32), sky
+
+
+__all__ = ["ErpDepth", "Teacher", "true_view_distance", "erp_directions"]

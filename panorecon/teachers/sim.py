@@ -1,0 +1,119 @@
+"""Simulated teachers: the true depth of each view through a declared error profile.
+
+They stand in for real monocular models on scenes whose truth is known and are always named ``sim:...``,
+never as the model they imitate. Each error is deterministic from (profile, scene, view index, seed).
+
+| profile | output | unknowns per view | smooth warp | edge blur | noise | dropped / NaN |
+|---|---|---|---|---|---|---|
+| `sim:clean` | z-depth | scale in [0.5, 2] | none | none | 0.5 % | none |
+| `sim:relative` | z-depth | scale in [0.5, 2] | ±8 % (log amplitude 0.08) | σ = 1.5 px | 2 % | 1 % dropped |
+| `sim:affine-disparity` | disparity | scale in [0.5, 2] and shift ±10 % of the median | ±10 % | σ = 2 px | 3 % | 3 % dropped, 1 % NaN |
+
+"Relative" outputs are known up to scale; "affine" outputs up to scale and shift (as MiDaS-style models).
+The smooth warp multiplies depth by exp(a * w(u, v)), w a sum of four random low-frequency cosines with
+unit peak; the edge blur is a Gaussian blur of the depth map that mixes foreground and background
+across depth edges; noise is multiplicative and Gaussian. Sky pixels are never valid.
+"""
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from ..geometry import PinholeCamera, ViewDepth
+from .base import ErpDepth, true_view_distance
+
+
+@dataclass(frozen=True)
+class SimProfile:
+    name: str
+    description: str
+    output: str  # "z" | "disparity"
+    affine: bool = False
+    scale_range: tuple[float, float] = (0.5, 2.0)
+    shift_frac: float = 0.0
+    warp: float = 0.0
+    edge_blur_px: float = 0.0
+    noise: float = 0.0
+    drop: float = 0.0
+    nan: float = 0.0
+
+
+PROFILES = {
+    p.name: p
+    for p in [
+        SimProfile("clean", "relative z-depth: unknown scale, 0.5 % noise", "z", noise=0.005),
+        SimProfile("relative", "relative z-depth: scale, smooth ±8 % warp, edge blur 1.5 px, 2 % noise, 1 % dropped",
+                   "z", warp=0.08, edge_blur_px=1.5, noise=0.02, drop=0.01),
+        SimProfile("affine-disparity", "affine-invariant disparity: scale and shift, ±10 % warp, edge blur 2 px, "
+                   "3 % noise, 3 % dropped, 1 % NaN", "disparity", affine=True, shift_frac=0.1, warp=0.1,
+                   edge_blur_px=2.0, noise=0.03, drop=0.03, nan=0.01),
+    ]
+}
+
+
+def _smooth_field(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    """Sum of four random low-frequency cosines over the image, peak magnitude 1, [h, w]."""
+    v, u = np.meshgrid(np.linspace(0, 1, h), np.linspace(0, 1, w), indexing="ij")
+    f = np.zeros((h, w))
+    for _ in range(4):
+        fu, fv = rng.uniform(-1.5, 1.5, 2)
+        f += rng.uniform(0.5, 1.0) * np.cos(2 * np.pi * (fu * u + fv * v) + rng.uniform(0, 2 * np.pi))
+    return f / max(np.abs(f).max(), 1e-12)
+
+
+class SimTeacher:
+    def __init__(self, profile: SimProfile, seed: int = 0):
+        self.profile = profile
+        self.seed = seed
+        self.name = f"sim:{profile.name}"
+
+    def _rng(self, scene_name: str, index: int) -> np.random.Generator:
+        return np.random.default_rng([self.seed, index, zlib.crc32(f"{self.name}/{scene_name}".encode())])
+
+    def _corrupt(self, z: np.ndarray, sky: np.ndarray, rng: np.random.Generator):
+        """z: true depth [h, w] (inf on sky) -> (output in the profile's kind, valid)."""
+        p = self.profile
+        valid = ~sky & np.isfinite(z) & (z > 0)
+        zf = np.where(valid, z, np.nan).astype(np.float64)
+        if not valid.any():
+            return np.full(z.shape, np.nan, np.float32), valid
+        fill = np.nanmax(zf)
+        zf = np.where(valid, zf, fill)  # sky as far background for the blur
+        if p.warp:
+            zf = zf * np.exp(p.warp * _smooth_field(*z.shape, rng))
+        if p.edge_blur_px:
+            zf = cv2.GaussianBlur(zf, (0, 0), p.edge_blur_px)
+        if p.noise:
+            zf = zf * (1 + p.noise * rng.standard_normal(z.shape))
+        out = 1.0 / np.maximum(zf, 1e-12) if p.output == "disparity" else zf
+        out = out * rng.uniform(*p.scale_range)
+        if p.affine:
+            out = out + p.shift_frac * rng.uniform(-1, 1) * np.median(out[valid])
+        if p.drop:
+            valid &= rng.random(z.shape) >= p.drop
+        out = out.astype(np.float32)
+        if p.nan:
+            out[rng.random(z.shape) < p.nan] = np.nan
+        valid &= np.isfinite(out)
+        out[~valid] = np.nan
+        return out, valid
+
+    def predict_views(self, scene, cameras: Sequence[PinholeCamera]) -> list[ViewDepth]:
+        views = []
+        for i, cam in enumerate(cameras):
+            dist, sky = true_view_distance(scene, cam)
+            z = dist / cam.z_to_distance_factor()
+            out, valid = self._corrupt(z, sky, self._rng(scene.name, i))
+            views.append(ViewDepth(cam, out, self.profile.output, valid, affine=self.profile.affine))
+        return views
+
+    def predict_erp(self, scene) -> ErpDepth:
+        if scene.distance is None or scene.distance_kind != "truth":
+            raise ValueError(f"scene {scene.name!r} has no ground-truth depth; simulated teachers need a synthetic scene")
+        out, valid = self._corrupt(scene.distance, scene.sky, self._rng(scene.name, 1_000_000))
+        kind = "disparity" if self.profile.output == "disparity" else "distance"
+        return ErpDepth(out, kind, valid, affine=self.profile.affine)

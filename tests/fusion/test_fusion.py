@@ -1,0 +1,148 @@
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from panorecon.fusion import FusionConfig, fuse_views, moge_merge
+from panorecon.fusion.affine import align_affine_views
+from panorecon.geometry import ViewDepth, centred_camera, erp_directions, make_layout
+from panorecon.metrics import depth_metrics
+
+from .conftest import box_distance, make_views
+
+
+class TestAccuracy:
+    def test_exact_views_recover_the_truth_up_to_one_scale(self, fib20, box_truth):
+        views = make_views(fib20, 128, np.random.default_rng(0))
+        r = fuse_views(views, 64, 128)
+        m = depth_metrics(r.distance, box_truth(64))
+        assert r.seen.all() and m["abs_rel"] < 5e-3, m
+        # the per-view scales it found undo the random ones: scale_i * raw_i agree with each other
+        assert r.report["residual"] < 1e-3
+
+    def test_fusion_really_fuses_noisy_views(self, fib20, box_truth):
+        rng = np.random.default_rng(1)
+        views = make_views(fib20, 128, rng, noise=0.03)
+        fused = depth_metrics(fuse_views(views, 64, 128).distance, box_truth(64))["abs_rel"]
+        per_view = np.median([depth_metrics(v.to_distance(), box_distance(v.camera.world_rays()))["abs_rel"] for v in views])
+        assert fused <= 0.7 * per_view, (fused, per_view)
+
+    def test_moge_reference_recovers_exact_views(self, box_truth):
+        layout = make_layout("icosahedron-vertices", fov_deg=90)
+        views = make_views(layout, 128, np.random.default_rng(2))
+        r = moge_merge(views, 64, 128)
+        assert depth_metrics(r.distance, box_truth(64))["abs_rel"] < 1e-2
+        assert r.report["iterations"] and np.isfinite(r.report["residual"])
+
+    def test_affine_disparity_views_are_aligned(self, fib20, box_truth):
+        rng = np.random.default_rng(3)
+        views, c = [], rng.uniform(-0.05, 0.05, 20)
+        c -= c.mean()  # the gauge assumes the shifts average to zero
+        for f, ci in zip(fib20.directions, c):
+            cam = centred_camera(f, 96, fib20.fov_deg)
+            z = box_distance(cam.world_rays()) / cam.z_to_distance_factor()
+            alpha = rng.uniform(0.5, 2)
+            raw = alpha / z + ci * alpha  # disparity up to scale alpha and shift
+            views.append(ViewDepth(cam, raw.astype(np.float32), "disparity", np.ones(raw.shape, bool), affine=True))
+        r = fuse_views(views, 64, 128)
+        assert depth_metrics(r.distance, box_truth(64))["abs_rel"] < 1e-2
+        dists, shifts, rep = align_affine_views(views)
+        assert rep["pairs"] > 20 and len(dists) == 20
+
+
+class TestNumericalStability:
+    def test_huge_depth_range_1e_minus_3_to_1e4(self, fib20):
+        def field(d):  # log10 distance sweeps -3 .. 4 smoothly over the sphere
+            return 10.0 ** (0.5 + 3.5 * np.tanh(3 * d[..., 0]))
+
+        views = make_views(fib20, 96, np.random.default_rng(4), field=field)
+        r = fuse_views(views, 48, 96)
+        truth = field(erp_directions(48, 96))
+        assert truth.min() < 2e-3 and truth.max() > 5e3
+        assert np.isfinite(r.distance).all()
+        assert depth_metrics(r.distance, truth)["abs_rel"] < 0.05
+
+    def test_sky_pixels_and_unseen_pixels(self, fib20):
+        def field(d):  # an open box: sky above the horizon
+            out = box_distance(d)
+            return np.where(d[..., 2] > 0.1, np.inf, out)
+
+        views = make_views(fib20, 96, np.random.default_rng(5), field=field)
+        for v in views:
+            assert not v.valid[np.isinf(field(v.camera.world_rays()))].any()
+        r = fuse_views(views, 48, 96)
+        sky = erp_directions(48, 96)[..., 2] > 0.15
+        assert np.isnan(r.distance[sky]).all() and not r.seen[sky].any()
+        ground = erp_directions(48, 96)[..., 2] < 0.0
+        assert np.isfinite(r.distance[ground]).all()
+
+    def test_a_view_with_no_valid_pixel_and_a_single_view(self, fib20):
+        views = make_views(fib20, 64, np.random.default_rng(6))
+        views[3] = ViewDepth(views[3].camera, np.full((64, 64), np.nan, np.float32), "z", np.zeros((64, 64), bool))
+        assert np.isfinite(fuse_views(views, 32, 64).distance[fuse_views(views, 32, 64).seen]).all()
+        one = fuse_views(views[:1], 32, 64)
+        assert one.seen.any() and not one.seen.all()
+        assert np.isfinite(one.distance[one.seen]).all() and np.isnan(one.distance[~one.seen]).all()
+
+    def test_two_hundred_views(self):
+        layout = make_layout("fibonacci", 200)
+        r = fuse_views(make_views(layout, 16, np.random.default_rng(7)), 32, 64)
+        assert r.seen.all() and np.isfinite(r.distance).all() and len(r.view_scale) == 200
+
+    def test_tiny_panorama_16x8(self, fib20):
+        r = fuse_views(make_views(fib20, 16, np.random.default_rng(8)), 8, 16)
+        assert r.distance.shape == (8, 16) and np.isfinite(r.distance[r.seen]).all()
+
+    @pytest.mark.slow
+    def test_large_panorama_4096x2048(self, fib20, box_truth):
+        r = fuse_views(make_views(fib20, 512, np.random.default_rng(9)), 2048, 4096)
+        assert depth_metrics(r.distance, box_truth(2048))["abs_rel"] < 1e-2
+
+    @pytest.mark.parametrize("fov", [1.0, 179.0])
+    def test_extreme_fields_of_view(self, fov):
+        layout = make_layout("fibonacci", 20, fov_deg=fov)
+        r = fuse_views(make_views(layout, 32, np.random.default_rng(10)), 32, 64)
+        assert r.seen.any() and np.isfinite(r.distance[r.seen]).all()
+        if fov > 170:
+            assert r.seen.all()
+
+    def test_nan_inf_zero_negative_teacher_values_are_ignored(self, fib20, box_truth):
+        views = make_views(fib20, 64, np.random.default_rng(11))
+        rng = np.random.default_rng(12)
+        for v in views:
+            bad = rng.random(v.depth.shape) < 0.05
+            v.depth[bad] = rng.choice([np.nan, np.inf, 0.0, -3.0], bad.sum()).astype(np.float32)
+            v.valid[:] = True  # a teacher that vouches for everything
+        r = fuse_views(views, 32, 64)
+        assert np.isfinite(r.distance[r.seen]).all()
+        assert depth_metrics(r.distance, box_truth(32))["abs_rel"] < 0.02
+
+    @settings(max_examples=12, deadline=None)
+    @given(st.floats(-6, 6), st.floats(-6, 6), st.floats(-6, 6))
+    def test_any_weights_from_1e_minus_6_to_1e6(self, lg, ll, ld):
+        views = make_views(make_layout("fibonacci", 12), 24, np.random.default_rng(13), noise=0.02)
+        cfg = FusionConfig(w_grad=10.0**lg, w_lap=10.0**ll, w_data=10.0**ld, maxiter=100)
+        r = fuse_views(views, 16, 32, cfg)
+        assert np.isfinite(r.distance[r.seen]).all() and r.seen.all()
+        assert all(isinstance(i, int) for i in r.report["iterations"]) and math.isfinite(r.report["residual"])
+
+    @pytest.mark.parametrize("field,value", [("w_data", 0.0), ("w_lap", -1.0), ("w_grad", float("nan")), ("preconditioner", "ilu")])
+    def test_bad_config_is_one_clear_error(self, field, value, fib20):
+        with pytest.raises(ValueError, match=field):
+            fuse_views(make_views(fib20, 16, np.random.default_rng(0)), 8, 16, FusionConfig(**{field: value}))
+
+    def test_bad_sizes(self, fib20):
+        views = make_views(fib20, 16, np.random.default_rng(0))
+        with pytest.raises(ValueError, match="width = 2 x height"):
+            fuse_views(views, 10, 30)
+        with pytest.raises(ValueError, match="no views"):
+            fuse_views([], 8, 16)
+
+
+def test_jacobi_and_amg_agree(fib20):
+    views = make_views(fib20, 64, np.random.default_rng(14), noise=0.02)
+    a = fuse_views(views, 64, 128, FusionConfig(preconditioner="amg", tol=1e-8, coarse_tol=1e-8, maxiter=2000))
+    b = fuse_views(views, 64, 128, FusionConfig(preconditioner="jacobi", tol=1e-8, coarse_tol=1e-8, maxiter=2000))
+    np.testing.assert_allclose(a.distance, b.distance, rtol=1e-4)

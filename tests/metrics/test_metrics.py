@@ -1,0 +1,54 @@
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from panorecon.metrics import depth_metrics, point_metrics
+
+
+def brute_nearest(a, b):
+    return np.sqrt(((a[:, None, :] - b[None]) ** 2).sum(-1)).min(1)
+
+
+class TestDepth:
+    @given(st.floats(0.01, 100.0))
+    def test_median_alignment_is_scale_invariant(self, s):
+        rng = np.random.default_rng(0)
+        t = rng.uniform(1, 10, (16, 16))
+        p = t * (1 + 0.05 * rng.standard_normal(t.shape))
+        a, b = depth_metrics(p, t), depth_metrics(p * s, t)
+        assert a["abs_rel"] == pytest.approx(b["abs_rel"], rel=1e-9)
+        assert depth_metrics(t * s, t)["abs_rel"] < 1e-12
+
+    def test_values_and_exclusions(self):
+        t = np.array([[1.0, 2.0], [np.inf, np.nan]])
+        p = np.array([[1.1, 2.0], [5.0, 5.0]])
+        m = depth_metrics(p, t, align="none")
+        assert m["pixels"] == 2 and m["abs_rel"] == pytest.approx(0.05) and m["delta1"] == 1.0
+        assert m["rmse"] == pytest.approx(np.sqrt(0.01 / 2))
+        assert depth_metrics(p, np.full((2, 2), np.nan))["pixels"] == 0
+
+    def test_shape_mismatch(self):
+        with pytest.raises(ValueError, match="shape"):
+            depth_metrics(np.ones((2, 2)), np.ones((3, 2)))
+
+
+class TestPoints:
+    def test_matches_brute_force_and_is_symmetric(self):
+        rng = np.random.default_rng(1)
+        a, b = rng.normal(size=(300, 3)), rng.normal(size=(200, 3)) + 0.1
+        m = point_metrics(a, b, threshold=0.3)
+        assert m["accuracy"] == pytest.approx(brute_nearest(a, b).mean(), rel=1e-9)
+        assert m["completeness"] == pytest.approx(brute_nearest(b, a).mean(), rel=1e-9)
+        assert m["chamfer"] == pytest.approx(point_metrics(b, a)["chamfer"], rel=1e-9)
+        prec, rec = (brute_nearest(a, b) < 0.3).mean(), (brute_nearest(b, a) < 0.3).mean()
+        assert m["fscore"] == pytest.approx(2 * prec * rec / (prec + rec))
+
+    def test_identical_clouds(self):
+        a = np.random.default_rng(2).normal(size=(100, 3))
+        m = point_metrics(a, a)
+        assert m["chamfer"] == 0 and m["fscore"] == 1
+
+    def test_empty_cloud(self):
+        with pytest.raises(ValueError, match="empty"):
+            point_metrics(np.zeros((0, 3)), np.ones((3, 3)))

@@ -1,0 +1,67 @@
+import numpy as np
+import pytest
+
+from panorecon.io import PanoreconInputError
+from panorecon.scenes import load_scene
+from panorecon.sources import get_source, list_sources, run_source
+from panorecon.sources import registry
+
+ALL = {"fibonacci", "icosahedral", "latlong", "cube", "moge-merge", "erp-direct", "random"}
+
+
+@pytest.fixture(scope="module")
+def bedroom():
+    return load_scene("bedroom", 256)
+
+
+def test_registry_lists_every_source():
+    assert ALL <= {s.name for s in list_sources()}
+    with pytest.raises(PanoreconInputError, match="unknown point source"):
+        get_source("vggt")
+
+
+def test_entry_point_sources_are_loaded(monkeypatch):
+    class EP:
+        name, value = "my-source", "pkg:fn"
+
+        @staticmethod
+        def load():
+            return lambda *a, **k: None
+
+    monkeypatch.setattr(registry, "entry_points", lambda group: [EP] if group == "panorecon.sources" else [])
+    monkeypatch.setattr(registry, "_loaded_entry_points", False)
+    monkeypatch.setattr(registry, "_SOURCES", dict(registry._SOURCES))
+    assert "my-source" in {s.name for s in list_sources()}
+
+
+@pytest.mark.parametrize("source", sorted(ALL - {"random"}))
+def test_every_source_reports_time_memory_and_error(bedroom, source):
+    pc, rep = run_source(bedroom, source, "sim:clean")
+    assert len(pc) > 0.9 * bedroom.height * bedroom.width
+    assert set(rep["seconds"]) >= {"total", "metrics"} and rep["peak_rss_mb"] > 0
+    assert rep["depth"]["abs_rel"] < 0.03, rep["depth"]
+    assert rep["points"]["chamfer"] < 0.05 and rep["points"]["count"] == len(pc)
+    if source != "erp-direct":
+        assert pc.view_id is not None and pc.view_id.max() < rep["views"]
+
+
+def test_fusion_beats_its_views_on_a_noisy_teacher():
+    ratios = []
+    for name in ("bedroom", "library"):
+        _, rep = run_source(load_scene(name, 512), "fibonacci", "sim:relative")
+        ratios.append(rep["depth"]["abs_rel"] / rep["teacher_per_view_abs_rel_median"])
+    assert np.mean(ratios) <= 0.7, ratios
+
+
+def test_sky_gives_no_points():
+    plaza = load_scene("city-plaza", 128)
+    pc, rep = run_source(plaza, "fibonacci", "sim:clean")
+    assert len(pc) <= (~plaza.sky).sum()
+    assert np.linalg.norm(pc.xyz, axis=1).max() < 1e4
+
+
+def test_random_source_and_scene_without_truth(real_data):
+    scene = load_scene("py360-demo", 128)
+    pc, rep = run_source(scene, "random", None)
+    assert len(pc) == 100_000 and np.linalg.norm(pc.xyz, axis=1).max() <= 10.0
+    assert rep["points"]["chamfer"].startswith("n/a") and rep["depth"].startswith("n/a")

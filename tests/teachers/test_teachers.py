@@ -1,0 +1,136 @@
+import json
+
+import numpy as np
+import pytest
+
+from panorecon.geometry import centred_camera, fibonacci_directions
+from panorecon.io import PanoreconInputError
+from panorecon.metrics import depth_metrics
+from panorecon.scenes import load_scene
+from panorecon.teachers import PROFILES, get_teacher, list_teachers
+from panorecon.teachers.base import true_view_distance
+
+
+@pytest.fixture(scope="module")
+def bedroom():
+    return load_scene("bedroom", 256)
+
+
+@pytest.fixture(scope="module")
+def cams():
+    return [centred_camera(f, 48, 80) for f in fibonacci_directions(6)]
+
+
+def test_listed_and_named_sim(bedroom):
+    specs = [s for s, _ in list_teachers()]
+    assert {"sim:clean", "sim:relative", "sim:affine-disparity"} <= set(specs)
+    assert all(s.startswith(("sim:", "onnx:", "file:")) for s in specs)
+    with pytest.raises(PanoreconInputError, match="unknown simulated profile"):
+        get_teacher("sim:depth-anything")
+    with pytest.raises(PanoreconInputError, match="expected sim:"):
+        get_teacher("midas")
+
+
+def test_sim_is_deterministic_and_severity_increases(bedroom, cams):
+    errs = []
+    for name in ["clean", "relative", "affine-disparity"]:
+        t = get_teacher(f"sim:{name}")
+        a, b = t.predict_views(bedroom, cams), t.predict_views(bedroom, cams)
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x.depth, y.depth)
+            assert not x.valid[~np.isfinite(x.depth)].any()
+        # severity measured in inverse depth after a per-view least-squares affine fit (fair to all kinds)
+        rel = []
+        for v in a:
+            d, _ = true_view_distance(bedroom, v.camera)
+            z = d / v.camera.z_to_distance_factor()
+            target = 1 / z if v.kind == "disparity" else z
+            ok = v.valid
+            A = np.stack([v.depth[ok], np.ones(ok.sum())], 1)
+            coef = np.linalg.lstsq(A, target[ok], rcond=None)[0]
+            rel.append(np.mean(np.abs(A @ coef - target[ok]) / target[ok]))
+        errs.append(np.median(rel))
+    assert errs[0] < errs[1] < errs[2], errs
+
+
+def test_sky_is_never_valid():
+    plaza = load_scene("city-plaza", 128)
+    for v in get_teacher("sim:relative").predict_views(plaza, [centred_camera(np.array([0.3, 0.2, 0.6]), 32, 90)]):
+        d, sky = true_view_distance(plaza, v.camera)
+        assert sky.any() and not v.valid[sky].any()
+
+
+def test_sim_needs_truth(real_data, cams):
+    with pytest.raises(ValueError, match="ground-truth"):
+        get_teacher("sim:clean").predict_views(load_scene("hohonet", 128), cams)
+
+
+class TestFileTeacher:
+    def test_hohonet_prediction_in_views_and_erp(self, real_data, cams):
+        spec = f"file:{real_data / 'hohonet_pano.pred_depth_mm.png'}?scale=0.001"
+        t = get_teacher(spec)
+        scene = load_scene("hohonet", 256)
+        erp = t.predict_erp(scene)
+        assert erp.depth.shape == (128, 256) and np.nanmax(erp.depth) < 20
+        views = t.predict_views(scene, cams)
+        assert all(v.kind == "distance" and v.valid.mean() > 0.99 for v in views)
+        # a view's distances agree with the ERP map it was sampled from
+        np.testing.assert_allclose(np.nanmedian(views[0].depth), np.nanmedian(scene.distance), rtol=0.5)
+
+    @pytest.mark.parametrize("spec,needle", [("file:/nope.png", "no such file"), ("file:x.png?scale=-1", "positive"),
+                                             ("file:x.png?bogus=1", "unknown option")])
+    def test_bad_specs(self, spec, needle):
+        with pytest.raises(PanoreconInputError, match=needle):
+            get_teacher(spec)
+
+    def test_npy_must_be_2_to_1(self, tmp_path):
+        np.save(tmp_path / "d.npy", np.ones((10, 10), np.float32))
+        with pytest.raises(PanoreconInputError, match="not an equirectangular"):
+            get_teacher(f"file:{tmp_path / 'd.npy'}")
+
+
+class TestOnnxTeacher:
+    def _model(self, tmp_path, config):
+        """A tiny ONNX net the test builds: output = 2 * mean over channels of the normalised input + 1."""
+        onnx = pytest.importorskip("onnx")
+        from onnx import TensorProto, helper
+
+        x = helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, 8, 12])
+        y = helper.make_tensor_value_info("depth", TensorProto.FLOAT, [1, 1, 8, 12])
+        axes = helper.make_tensor("axes", TensorProto.INT64, [1], [1])
+        two = helper.make_tensor("two", TensorProto.FLOAT, [], [2.0])
+        one = helper.make_tensor("one", TensorProto.FLOAT, [], [1.0])
+        nodes = [helper.make_node("ReduceMean", ["image", "axes"], ["m"], keepdims=1),
+                 helper.make_node("Mul", ["m", "two"], ["m2"]), helper.make_node("Add", ["m2", "one"], ["depth"])]
+        graph = helper.make_graph(nodes, "tiny", [x], [y], initializer=[axes, two, one])
+        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+        model.ir_version = 9
+        path = tmp_path / "tiny.onnx"
+        onnx.save(model, path)
+        (tmp_path / "tiny.json").write_text(json.dumps(config))
+        return path
+
+    def test_pre_and_post_processing(self, tmp_path, cams):
+        pytest.importorskip("onnxruntime")
+        path = self._model(tmp_path, {"input_size": [8, 12], "mean": [0.5, 0.5, 0.5], "std": [0.5, 0.5, 0.5],
+                                      "output": "z", "mode": "relative"})
+        scene = load_scene("bedroom", 128)
+        t = get_teacher(f"onnx:{path}")
+        flat = np.full((16, 24, 3), 191, np.uint8)  # (0.749 - 0.5) / 0.5 = 0.498 -> 2 * 0.498 + 1
+        np.testing.assert_allclose(t.run(flat), 1.996, atol=2e-3)
+        assert t.run(flat).shape == (16, 24)
+        views = t.predict_views(scene, cams[:2])
+        assert views[0].depth.shape == (48, 48) and views[0].kind == "z" and not views[0].affine
+        erp = t.predict_erp(scene)
+        assert erp.kind == "distance" and erp.depth.shape == (64, 128)
+
+    def test_config_errors(self, tmp_path):
+        pytest.importorskip("onnxruntime")
+        path = self._model(tmp_path, {"input_size": [8, 12], "output": "inverse", "mode": "relative"})
+        with pytest.raises(PanoreconInputError, match="'output' must be one of"):
+            get_teacher(f"onnx:{path}")
+        (tmp_path / "tiny.json").unlink()
+        with pytest.raises(PanoreconInputError, match="expected its config"):
+            get_teacher(f"onnx:{path}")
+        with pytest.raises(PanoreconInputError, match="no such ONNX"):
+            get_teacher("onnx:/missing.onnx")
