@@ -49,3 +49,26 @@ def test_not_two_to_one_image(tmp_path, capsys):
     assert main(["render", str(tmp_path / "square.png"), "--out", str(tmp_path / "o")]) == 2
     assert "not an equirectangular panorama" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_points_writes_cloud_and_report(tmp_path, capsys):
+    import json
+
+    from panorecon.geometry import PointCloud
+
+    argv = ["points", "bedroom", "--source", "fibonacci", "--teacher", "sim:relative", "--views", "12", "--width", "128",
+            "--out", str(tmp_path / "c.ply"), "--report", str(tmp_path / "r.json")]
+    assert main(argv) == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    for key in ("source", "teacher", "views", "seconds", "peak_rss_mb", "depth", "points"):
+        assert key in rep
+    assert rep["views"] == 12 and "total" in rep["seconds"]
+    assert {"abs_rel", "rmse", "delta1"} <= set(rep["depth"]) and {"count", "chamfer", "accuracy", "completeness"} <= set(rep["points"])
+    assert len(PointCloud.load_ply(tmp_path / "c.ply")) == rep["points"]["count"]
+    assert main(["points", "bedroom", "--source", "fibonacci", "--out", str(tmp_path / "x.ply")]) == 2
+    assert "needs --teacher" in capsys.readouterr().err
+
+
+def test_lists(capsys):
+    assert main(["teachers", "list"]) == 0 and "sim:affine-disparity" in capsys.readouterr().out
+    assert main(["sources", "list"]) == 0 and "moge-merge" in capsys.readouterr().out

@@ -1,0 +1,81 @@
+"""Fusion benchmark: the method's fusion (20 Fibonacci views) against the MoGe-style reference merge
+(12 icosahedron-vertex views at 90 degrees), measured in the same run, on a box room whose true ray
+distance is known, with per-view random scales in [0.7, 1.4] and 2 % multiplicative noise.
+
+    python benchmarks/bench_fusion.py [--quick] [--repeats N] [--out result.json]
+
+Prints JSON: machine, versions, commit, and per size the median seconds, AbsRel and peak RSS of each
+method (each repeat in a fresh process, so the peak is that run's own; it includes the ~0.3 GB of imports)
+and the speed ratio reference / method.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import environment, in_fresh_process  # noqa: E402
+
+
+def box_distance(d):
+    lo, hi = np.array([-3.0, -4.0, -1.6]), np.array([2.0, 3.5, 1.1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d > 0, hi / d, np.where(d < 0, lo / d, np.inf))
+    return t.min(-1)
+
+
+def one_run(method: str, height: int, view_size: int, seed: int) -> dict:
+    from panorecon.fusion import fuse_views, moge_merge
+    from panorecon.geometry import ViewDepth, centred_camera, erp_directions, make_layout
+    from panorecon.metrics import depth_metrics
+
+    layout = make_layout("fibonacci", 20) if method == "fibonacci-lsq" else make_layout("icosahedron-vertices", fov_deg=90)
+    rng = np.random.default_rng(seed)
+    views = []
+    for f in layout.directions:
+        cam = centred_camera(f, view_size, layout.fov_deg)
+        z = box_distance(cam.world_rays()) / cam.z_to_distance_factor()
+        z = z * rng.uniform(0.7, 1.4) * (1 + 0.02 * rng.standard_normal(z.shape))
+        views.append(ViewDepth(cam, z.astype(np.float32), "z", np.ones(z.shape, bool)))
+    t = time.perf_counter()
+    r = (fuse_views if method == "fibonacci-lsq" else moge_merge)(views, height, 2 * height)
+    seconds = time.perf_counter() - t
+    m = depth_metrics(r.distance, box_distance(erp_directions(height, 2 * height)))
+    return {"seconds": seconds, "abs_rel": m["abs_rel"], "iterations": r.report["iterations"]}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes, one repeat (CI)")
+    ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    sizes = [(128, 128)] if args.quick else [(480, 512), (1024, 512)]  # (ERP height, view size)
+    repeats = args.repeats or (1 if args.quick else 3)
+    results = []
+    for height, view_size in sizes:
+        row = {"erp": f"{2 * height}x{height}", "view_size": view_size, "repeats": repeats}
+        for method in ("fibonacci-lsq", "moge-reference"):
+            runs = [in_fresh_process(one_run, method, height, view_size, k) for k in range(repeats)]
+            row[method] = {"median_seconds": statistics.median(r["seconds"] for r in runs),
+                           "median_abs_rel": statistics.median(r["abs_rel"] for r in runs),
+                           "peak_rss_mb": max(r["peak_rss_mb"] for r in runs), "iterations": runs[0]["iterations"]}
+        row["speedup_vs_reference"] = row["moge-reference"]["median_seconds"] / row["fibonacci-lsq"]["median_seconds"]
+        results.append(row)
+        print(json.dumps(row), file=sys.stderr, flush=True)
+    out = {"benchmark": "fusion", **environment(), "results": results}
+    text = json.dumps(out, indent=2)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return out
+
+
+if __name__ == "__main__":
+    main()

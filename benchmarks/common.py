@@ -1,0 +1,45 @@
+"""What every benchmark prints beside its numbers: machine, versions, commit."""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import platform
+import resource
+import subprocess
+import sys
+from pathlib import Path
+
+
+def environment() -> dict:
+    import numpy
+    import scipy
+    import torch
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
+                                cwd=Path(__file__).parent).stdout.strip()
+        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                                    text=True, cwd=Path(__file__).parent).stdout.strip())
+    except (OSError, subprocess.CalledProcessError):
+        commit, dirty = "unknown", False
+    return {"machine": {"platform": platform.platform(), "processor": platform.machine(), "cpus": os.cpu_count()},
+            "versions": {"python": sys.version.split()[0], "numpy": numpy.__version__, "scipy": scipy.__version__,
+                         "torch": torch.__version__},
+            "commit": commit + ("+dirty" if dirty else "")}
+
+
+def _child(fn, args, queue):
+    out = fn(*args)
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    queue.put(out)
+
+
+def in_fresh_process(fn, *args) -> dict:
+    """Run fn(*args) -> dict in a new process (spawned, so its peak RSS is its own) and add 'peak_rss_mb'."""
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=_child, args=(fn, args, q))
+    p.start()
+    out = q.get()
+    p.join()
+    return out

@@ -1,0 +1,106 @@
+"""Error against run time for point-cloud fusion: Fibonacci N in {12, 15, 20, 25, 40}, the other layouts,
+and solver settings (pyramid depth, CG tolerance), on the synthetic scenes.
+
+    python eval/sweep_fusion.py --out out/sweep [--scenes bedroom,beach] [--width 512] [--teacher sim:relative]
+
+Writes sweep.csv (one row per scene x configuration; rows already there are skipped, so an interrupted
+sweep resumes) and pareto.png (AbsRel against seconds, per scene and averaged, Pareto front marked).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+from pathlib import Path
+
+from panorecon.fusion import FusionConfig
+from panorecon.io import atomic_write
+from panorecon.scenes import list_scenes, load_scene
+from panorecon.sources import run_source
+
+FIELDS = ["scene", "config", "source", "views", "levels", "tol", "abs_rel", "teacher_per_view_abs_rel", "delta1", "chamfer", "seconds", "fusion_seconds", "peak_rss_mb"]
+
+
+def configurations():
+    for n in (12, 15, 20, 25, 40):
+        yield f"fibonacci-{n}", "fibonacci", n, None, 1e-5
+    for src in ("icosahedral", "latlong", "cube", "moge-merge"):
+        yield src, src, None, None, None
+    for levels in (1, 2, 3):
+        yield f"fibonacci-20-levels{levels}", "fibonacci", 20, levels, 1e-5
+    for tol in (1e-3, 1e-7):
+        yield f"fibonacci-20-tol{tol:g}", "fibonacci", 20, None, tol
+
+
+def pareto(points):
+    """Indices of points not dominated in (seconds, abs_rel), both lower-is-better."""
+    return [i for i, (s, e) in enumerate(points) if not any(s2 <= s and e2 <= e and (s2, e2) != (s, e) for s2, e2 in points)]
+
+
+def plot(rows, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    df = pd.DataFrame(rows)
+    df[["abs_rel", "seconds"]] = df[["abs_rel", "seconds"]].astype(float)
+    mean = df.groupby("config")[["abs_rel", "seconds"]].mean().reset_index()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
+    for scene, g in df.groupby("scene"):
+        axes[0].scatter(g["seconds"], g["abs_rel"], s=14, label=scene)
+    axes[0].set(xlabel="seconds (source total)", ylabel="AbsRel (median-aligned)", title="per scene", yscale="log")
+    axes[0].legend(fontsize=7)
+    pts = list(zip(mean["seconds"], mean["abs_rel"]))
+    front = pareto(pts)
+    axes[1].scatter(mean["seconds"], mean["abs_rel"], c=["C3" if i in front else "C0" for i in range(len(pts))])
+    for (s, e), name in zip(pts, mean["config"]):
+        axes[1].annotate(name, (s, e), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    fp = sorted(pts[i] for i in front)
+    axes[1].plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1, label="Pareto front")
+    axes[1].set(xlabel="seconds (mean over scenes)", ylabel="AbsRel (mean over scenes)", title="averaged", yscale="log")
+    axes[1].legend()
+    fig.tight_layout()
+    with atomic_write(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--scenes", default=",".join(s.name for s in list_scenes() if s.kind == "synthetic"))
+    ap.add_argument("--width", type=int, default=512)
+    ap.add_argument("--teacher", default="sim:relative")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "sweep.csv"
+    rows = list(csv.DictReader(csv_path.open())) if csv_path.exists() else []
+    done = {(r["scene"], r["config"]) for r in rows}
+    for scene_name in args.scenes.split(","):
+        scene = None
+        for name, source, n, levels, tol in configurations():
+            if (scene_name, name) in done:
+                continue
+            scene = scene or load_scene(scene_name, args.width)
+            cfg = None if tol is None else FusionConfig(levels=levels, tol=tol)
+            _, rep = run_source(scene, source, args.teacher, n, cfg)
+            row = {"scene": scene_name, "config": name, "source": source, "views": rep["views"], "levels": levels or "auto",
+                   "tol": tol or "", "abs_rel": rep["depth"]["abs_rel"],
+                   "teacher_per_view_abs_rel": rep.get("teacher_per_view_abs_rel_median", ""), "delta1": rep["depth"]["delta1"],
+                   "chamfer": rep["points"]["chamfer"], "seconds": rep["seconds"]["total"] - rep["seconds"]["metrics"],
+                   "fusion_seconds": rep["seconds"].get("fusion", 0.0), "peak_rss_mb": rep["peak_rss_mb"]}
+            rows.append(row)
+            with atomic_write(csv_path) as tmp, open(tmp, "w", newline="") as f:
+                w = csv.DictWriter(f, FIELDS)
+                w.writeheader()
+                w.writerows(rows)
+            print(f"{scene_name:16s} {name:28s} AbsRel {row['abs_rel']:.4f}  {row['seconds']:.2f} s", flush=True)
+    plot(rows, out / "pareto.png")
+    print(f"{len(rows)} rows -> {csv_path}, {out / 'pareto.png'}")
+
+
+if __name__ == "__main__":
+    main()
