@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+
+import numpy as np
 import sys
 import time
 from pathlib import Path
@@ -76,22 +78,26 @@ def cmd_inspect(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    """The main job on the built-in default scene: render, ground-truth cloud, screenshot."""
-    from .scenes import DEFAULT_SCENE, load_scene
+    """The main job on the built-in default scene: render, ground-truth cloud and its screenshot, then the
+    method's initial cloud (20 Fibonacci views, simulated teacher, log-depth fusion) with its report."""
+    from .scenes import DEFAULT_SCENE
 
     out = Path(args.out)
     scene = args.scene or DEFAULT_SCENE
-    loaded = load_scene(scene, args.width)
+    cmd_render(argparse.Namespace(scene=scene, out=str(out), width=args.width))
+    cmd_gt_cloud(argparse.Namespace(scene=scene, out=str(out / "gt_cloud.ply"), width=args.width))
+    from .geometry import PointCloud
+
+    gt = PointCloud.load_ply(out / "gt_cloud.ply")
+    outdoor = bool(np.isinf(np.load(out / "distance.npy")).any()) if (out / "distance.npy").exists() else True
     # indoor scenes (no sky) are shown from above with the ceiling cut away
-    clip_z = None if loaded.sky.any() or loaded.distance is None else float(0.5 * loaded.point_cloud().xyz[:, 2].max())
-    steps = [
-        (cmd_render, argparse.Namespace(scene=scene, out=str(out), width=args.width)),
-        (cmd_gt_cloud, argparse.Namespace(scene=scene, out=str(out / "gt_cloud.ply"), width=args.width)),
-        (cmd_inspect, argparse.Namespace(cloud=str(out / "gt_cloud.ply"), screenshot=str(out / "gt_cloud.png"),
-                                         color=None, point_size=2.0, clip_z=clip_z)),
-    ]
-    for fn, ns in steps:
-        fn(ns)
+    clip_z = None if outdoor else float(0.5 * gt.xyz[:, 2].max())
+    cmd_inspect(argparse.Namespace(cloud=str(out / "gt_cloud.ply"), screenshot=str(out / "gt_cloud.png"),
+                                   color=None, point_size=2.0, clip_z=clip_z))
+    cmd_points(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, view_size=None,
+                                  width=args.width, out=str(out / "fibonacci_cloud.ply"), report=str(out / "fibonacci_report.json")))
+    cmd_inspect(argparse.Namespace(cloud=str(out / "fibonacci_cloud.ply"), screenshot=str(out / "fibonacci_cloud.png"),
+                                   color=None, point_size=2.0, clip_z=clip_z))
     return 0
 
 
@@ -184,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="out/demo")
     d.add_argument("--scene", default=None, help="scene name (default: the built-in default scene)")
     d.add_argument("--width", type=int, default=1024)
+    d.add_argument("--teacher", default="sim:relative", help="depth teacher for the method's point cloud")
     d.set_defaults(fn=cmd_demo)
     return p
 

@@ -72,3 +72,11 @@ def test_points_writes_cloud_and_report(tmp_path, capsys):
 def test_lists(capsys):
     assert main(["teachers", "list"]) == 0 and "sim:affine-disparity" in capsys.readouterr().out
     assert main(["sources", "list"]) == 0 and "moge-merge" in capsys.readouterr().out
+
+
+def test_demo_runs_the_main_job(tmp_path):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--width", "128"]) == 0
+    for name in ("pano.png", "distance.npy", "mask.png", "gt_cloud.ply", "gt_cloud.png", "fibonacci_cloud.ply",
+                 "fibonacci_report.json", "fibonacci_cloud.png"):
+        assert (out / name).is_file(), name

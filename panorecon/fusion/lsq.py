@@ -20,6 +20,7 @@ Affine-invariant views (unknown scale and shift) are first aligned to each other
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -32,7 +33,7 @@ import scipy.sparse.linalg as spla
 
 from ..geometry import ViewDepth, erp_directions, sample_erp
 from .affine import align_affine_views
-from .operators import horizontal_pairs, laplacian_centres, laplacian_matrix, vertical_pairs
+from .operators import horizontal_pairs, laplacian_centres, stacked_operator, vertical_pairs
 from .warp import ErpObservation, warp_to_erp
 
 
@@ -43,13 +44,13 @@ class FusionConfig:
     w_grad: float = 1.0  # gradient-matching weight (eq. 16)
     w_lap: float = 0.25  # Laplacian weight (eq. 17)
     w_data: float = 0.02  # zero-order anchor weight
-    levels: int | None = None  # pyramid levels; None: halve until the coarsest ERP height is <= 64
-    tol: float = 1e-5  # relative residual at which CG stops, per level
+    levels: int | None = None  # pyramid levels; None: halve until the coarsest ERP height is <= 256
+    tol: float = 1e-3  # relative residual at which CG stops on the finest level (1e-4 changed AbsRel by < 0.1 %)
     maxiter: int = 300  # CG iterations per level at most
     scale_iters: int = 2  # per-view scale updates per level (levels up to scale_max_height only)
     scale_max_height: int = 128  # finer levels keep the per-view scales of the coarser ones
     coarse_tol: float = 1e-3  # CG tolerance on every level but the finest
-    preconditioner: str = "amg"  # "amg" (pyamg smoothed aggregation) or "jacobi"
+    preconditioner: str = "jacobi"  # "jacobi" or "amg" (pyamg smoothed aggregation: fewer, dearer iterations)
     area_weight: bool = True  # weight equations by cos(latitude), the ERP pixel's solid angle
     extra: dict = field(default_factory=dict)
 
@@ -86,10 +87,11 @@ def _check_views(views: Sequence[ViewDepth], height: int, width: int) -> None:
         raise ValueError(f"fuse_views: ERP size {width}x{height}: expected width = 2 x height >= 4")
 
 
-def pyramid_heights(height: int, levels: int | None) -> list[int]:
-    """ERP heights from coarsest to finest; each level halves the next (kept even)."""
+def pyramid_heights(height: int, levels: int | None, coarsest: int = 256) -> list[int]:
+    """ERP heights from coarsest to finest, each level half the next; ``levels`` of them, or (None) as many
+    as it takes to bring the coarsest height to ``coarsest`` or below."""
     hs = [height]
-    while (levels is None and hs[-1] > 64) or (levels is not None and len(hs) < levels):
+    while (levels is None and hs[-1] > coarsest) or (levels is not None and len(hs) < levels):
         nxt = hs[-1] // 2
         if nxt < 4:
             break
@@ -105,9 +107,17 @@ class _Level:
     seen: np.ndarray  # [N] bool
 
 
+@functools.lru_cache(maxsize=2)
+def _erp_rays(height: int) -> np.ndarray:
+    """Unit ERP directions [H*2H, 3] of one size, computed once (read-only)."""
+    d = erp_directions(height, 2 * height).reshape(-1, 3)
+    d.flags.writeable = False
+    return d
+
+
 def _observe(views, dists, height) -> _Level:
     width = 2 * height
-    dirs = erp_directions(height, width).reshape(-1, 3)
+    dirs = _erp_rays(height)
     obs = [warp_to_erp(v, height, width, dirs, d) for v, d in zip(views, dists)]
     seen = np.zeros(height * width, bool)
     for o in obs:
@@ -128,7 +138,6 @@ def _assemble(level: _Level, cfg: FusionConfig):
     area = _row_area(H, W, cfg.area_weight)
     hp, hq = horizontal_pairs(H, W)
     vp, vq = vertical_pairs(H, W)
-    lap = laplacian_matrix(H, W)
     lc = laplacian_centres(H, W)
     wgx, tgx = np.zeros(N), np.zeros(N)
     wgy, tgy = np.zeros(len(vp)), np.zeros(len(vp))
@@ -162,19 +171,15 @@ def _assemble(level: _Level, cfg: FusionConfig):
     for o, w in zip(level.obs, data_w):
         diag += np.bincount(o.index, w, minlength=N)
     diag[~level.seen] = 1.0  # unseen pixels carry no equation: decouple them (x = 0 there, reported as NaN)
-    # one COO assembly of gradient edges + diagonal, one sparse product for the Laplacian term, one sum
-    wx, wy = cfg.w_grad * wgx * area, cfg.w_grad * wgy * area_v
-    rows = np.concatenate([hp, hq, hp, hq, vp, vq, vp, vq, np.arange(N)])
-    cols = np.concatenate([hp, hq, hq, hp, vp, vq, vq, vp, np.arange(N)])
-    vals = np.concatenate([wx, wx, -wx, -wx, wy, wy, -wy, -wy, diag])
-    A = sp.csr_matrix((vals, (rows, cols)), shape=(N, N))
-    if cfg.w_lap > 0:
-        A = A + cfg.w_lap * (lap.T @ sp.diags(wl * area[lc]) @ lap)
-    # b0 = D^T (weighted gradient targets) + w_lap Lap^T (weighted Laplacian targets)
-    tx, ty = cfg.w_grad * tgx * area, cfg.w_grad * tgy * area_v
-    b0 = (np.bincount(hq, tx, minlength=N) - np.bincount(hp, tx, minlength=N)
-          + np.bincount(vq, ty, minlength=N) - np.bincount(vp, ty, minlength=N)
-          + cfg.w_lap * (lap.T @ (tl * area[lc])))
+    # A = (R B)^T (R B) for the stacked operator B = [Dx; Dy; Lap; I] and row weights R^2 = (gradient, Laplacian,
+    # data) weights: one sparse product on a cached structure
+    B, row_of_entry = stacked_operator(H, W)
+    w_rows = np.concatenate([cfg.w_grad * wgx * area, cfg.w_grad * wgy * area_v, cfg.w_lap * wl * area[lc], diag])
+    Bw = sp.csr_matrix((B.data * np.sqrt(w_rows)[row_of_entry], B.indices, B.indptr), shape=B.shape)
+    A = (Bw.T @ Bw).tocsr()
+    # b0 = B^T (weighted targets) for the gradient and Laplacian rows (the data rows come from _data_rhs)
+    targets = np.concatenate([cfg.w_grad * tgx * area, cfg.w_grad * tgy * area_v, cfg.w_lap * tl * area[lc], np.zeros(N)])
+    b0 = np.bincount(B.indices, B.data * targets[row_of_entry], minlength=N)
     return A, b0, data_w
 
 
@@ -261,7 +266,7 @@ def _upsample(x: np.ndarray, seen: np.ndarray, h: int, H: int) -> np.ndarray:
     grid = x.reshape(h, 2 * h).copy()
     if (~seen).any() and seen.any():
         grid[~seen.reshape(h, 2 * h)] = np.median(x[seen])
-    return sample_erp(grid, erp_directions(H, 2 * H), "linear").ravel()
+    return sample_erp(grid, _erp_rays(H), "linear").ravel()
 
 
 def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: FusionConfig | None = None) -> FusionResult:

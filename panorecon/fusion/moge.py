@@ -56,7 +56,7 @@ def moge_merge(views: Sequence[ViewDepth], height: int, width: int, *, levels: i
     report = {"solver": "lsmr, coarse-to-fine (MoGe-style)", "levels": []}
     x = None
     prev = None
-    for h in pyramid_heights(height, levels):
+    for h in pyramid_heights(height, levels, coarsest=64):
         tl = time.perf_counter()
         level = _observe(views, dists, h)
         A, b = _rows(level, lap_weight)

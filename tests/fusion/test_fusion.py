@@ -146,3 +146,16 @@ def test_jacobi_and_amg_agree(fib20):
     a = fuse_views(views, 64, 128, FusionConfig(preconditioner="amg", tol=1e-8, coarse_tol=1e-8, maxiter=2000))
     b = fuse_views(views, 64, 128, FusionConfig(preconditioner="jacobi", tol=1e-8, coarse_tol=1e-8, maxiter=2000))
     np.testing.assert_allclose(a.distance, b.distance, rtol=1e-4)
+
+
+def test_stacked_operator_matches_its_parts():
+    import scipy.sparse as sp
+
+    from panorecon.fusion.operators import difference_matrix, horizontal_pairs, laplacian_matrix, stacked_operator, vertical_pairs
+
+    H, W = 5, 10
+    B, rows = stacked_operator(H, W)
+    ref = sp.vstack([difference_matrix(*horizontal_pairs(H, W), H * W), difference_matrix(*vertical_pairs(H, W), H * W),
+                     laplacian_matrix(H, W), sp.identity(H * W)])
+    assert abs(B - ref).max() == 0
+    np.testing.assert_array_equal(rows, np.repeat(np.arange(B.shape[0]), np.diff(B.indptr)))
