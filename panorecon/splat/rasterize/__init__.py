@@ -1,0 +1,45 @@
+"""Gaussian rasterization behind one gsplat-like function. Backends so far: ``torch`` (the reference)."""
+from __future__ import annotations
+
+import torch
+
+from .projection import project_gaussians, quat_to_rotmat
+from .sh import sh_to_rgb
+from .torch_backend import rasterize_tiles
+
+BACKENDS = ("torch",)
+
+
+def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int, height: int, *, sh_degree=None,
+              near_plane: float = 0.01, far_plane: float = 1e10, backgrounds=None, backend: str = "torch",
+              eps2d: float = 0.3, tile_size: int = 16, return_contrib: bool = False):
+    """Render Gaussians into C cameras.
+
+    means [N,3] metres; quats [N,4] wxyz (any norm, zero = identity); scales [N,3] metres (linear);
+    opacities [N] in [0,1]; colors [N,3] RGB or SH coefficients [N,K,3] with ``sh_degree``; viewmats [C,4,4]
+    world-to-camera (OpenCV); Ks [C,3,3]. Returns image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1]
+    (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
+    radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend={backend!r}: expected one of {BACKENDS}")
+    means2d, conics, depths, radii = project_gaussians(means, quats, scales, viewmats, Ks, width, height,
+                                                       near_plane, far_plane, eps2d)
+    if sh_degree is None:
+        if colors.dim() != 2 or colors.shape[-1] != 3:
+            raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB (or pass sh_degree for [N, K, 3])")
+        cols = colors[None].expand(len(viewmats), -1, -1)
+    else:
+        campos = -torch.einsum("cji,cj->ci", viewmats[:, :3, :3], viewmats[:, :3, 3])
+        dirs = means[None] - campos[:, None]
+        dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        cols = sh_to_rgb(sh_degree, colors, dirs)
+    image, alpha, depth, contrib = rasterize_tiles(means2d, conics, cols, opacities, depths, radii, width, height,
+                                                   tile_size, backgrounds, return_contrib)
+    meta = {"means2d": means2d, "conics": conics, "depths": depths, "radii": radii, "backend": backend}
+    if contrib:
+        meta.update(contrib)
+    return image, alpha, depth, meta
+
+
+__all__ = ["rasterize", "project_gaussians", "quat_to_rotmat", "sh_to_rgb", "BACKENDS"]

@@ -1,0 +1,71 @@
+"""EWA projection of 3D Gaussians into pinhole cameras (gsplat's conventions), differentiable PyTorch.
+
+Cameras: world-to-camera ``viewmats`` [C, 4, 4] in OpenCV axes and ``Ks`` [C, 3, 3] with pixel (i, j) centred
+at (j + 0.5, i + 0.5). A Gaussian is kept in a camera when near < z < far; its 2D covariance is
+J W Sigma W^T J^T + eps2d * I (eps2d = 0.3 px^2 low-pass, as in 3DGS and gsplat), with the Jacobian taken at
+the mean's view direction clamped to the image's extent plus 30 % of the half field of view (gsplat's rule, which keeps Gaussians far
+outside the image from exploding). radius = ceil(3 sqrt(largest eigenvalue)); radius 0 marks a culled one.
+"""
+from __future__ import annotations
+
+import torch
+
+
+def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
+    """wxyz quaternions [N, 4] (any norm) -> rotation matrices [N, 3, 3]. A zero-norm quaternion is read as
+    the identity rotation."""
+    norm = quats.norm(dim=-1, keepdim=True)
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=quats.dtype, device=quats.device)
+    q = torch.where(norm > 1e-12, quats / norm.clamp_min(1e-12), identity)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], -1).reshape(-1, 3, 3)
+
+
+def covariance_3d(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
+    """Sigma = R S S R^T, [N, 3, 3] (metres^2)."""
+    M = quat_to_rotmat(quats) * scales[:, None, :]
+    return M @ M.transpose(-1, -2)
+
+
+def project_gaussians(means, quats, scales, viewmats, Ks, width: int, height: int, near_plane: float = 0.01,
+                      far_plane: float = 1e10, eps2d: float = 0.3):
+    """-> means2d [C, N, 2] (pixels), conics [C, N, 3] (a, b, c of the inverse 2D covariance), depths [C, N]
+    (camera z, metres), radii [C, N] int (0 = culled)."""
+    R = viewmats[:, :3, :3]
+    t = viewmats[:, :3, 3]
+    p = torch.einsum("cij,nj->cni", R, means) + t[:, None, :]
+    x, y, z = p.unbind(-1)
+    valid = (z > near_plane) & (z < far_plane)
+    zs = torch.where(valid, z, torch.ones_like(z))
+    fx, fy = Ks[:, 0, 0, None], Ks[:, 1, 1, None]
+    cx, cy = Ks[:, 0, 2, None], Ks[:, 1, 2, None]
+    # the Jacobian is evaluated at the view direction clamped to the image's extent plus 30 % of the half FOV
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    tx = zs * torch.minimum(torch.maximum(x / zs, -(cx / fx + 0.3 * tan_x)), (width - cx) / fx + 0.3 * tan_x)
+    ty = zs * torch.minimum(torch.maximum(y / zs, -(cy / fy + 0.3 * tan_y)), (height - cy) / fy + 0.3 * tan_y)
+    zeros = torch.zeros_like(zs)
+    J = torch.stack([fx / zs, zeros, -fx * tx / zs**2, zeros, fy / zs, -fy * ty / zs**2], -1).reshape(*zs.shape, 2, 3)
+    Sigma = covariance_3d(quats, scales)
+    cov_c = torch.einsum("cij,njk,clk->cnil", R, Sigma, R)
+    cov2d = J @ cov_c @ J.transpose(-1, -2)
+    a = cov2d[..., 0, 0] + eps2d
+    b = cov2d[..., 0, 1]
+    c = cov2d[..., 1, 1] + eps2d
+    det = a * c - b * b
+    valid = valid & (det > 0)
+    det_s = torch.where(valid, det, torch.ones_like(det))
+    conics = torch.stack([c / det_s, -b / det_s, a / det_s], -1)
+    mid = 0.5 * (a + c)
+    lam = mid + torch.sqrt((mid * mid - det_s).clamp_min(0.01))
+    radii = torch.ceil(3 * torch.sqrt(lam)).detach()
+    means2d = torch.stack([fx * x / zs + cx, fy * y / zs + cy], -1)
+    # culled: behind/near/far, degenerate, or entirely off the image
+    on_image = ((means2d[..., 0] + radii > 0) & (means2d[..., 0] - radii < width)
+                & (means2d[..., 1] + radii > 0) & (means2d[..., 1] - radii < height))
+    valid = valid & on_image.detach() & torch.isfinite(radii)
+    radii = torch.where(valid, radii, torch.zeros_like(radii)).to(torch.int32)
+    return means2d, conics, torch.where(valid, z, torch.zeros_like(z)), radii
