@@ -27,4 +27,6 @@ if [ "$extras" = "dev" ]; then
 else
     $PIP install -q -e .
 fi
+# build the C++ rasterizer now rather than on first use (it falls back to the torch backend if it cannot)
+.venv/bin/python -m panorecon.splat.rasterize.build
 echo "panorecon installed in $(pwd)/.venv"

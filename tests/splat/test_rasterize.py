@@ -44,7 +44,7 @@ def test_single_isotropic_gaussian_matches_the_analytic_2d_gaussian():
     means = torch.tensor([[z, 0.0, 0.0]], dtype=torch.float64)
     img, alpha, depth, meta = rasterize(means, torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64),
                                         torch.full((1, 3), s, dtype=torch.float64), torch.tensor([o], dtype=torch.float64),
-                                        torch.ones(1, 3, dtype=torch.float64), V, K, 64, 64)
+                                        torch.ones(1, 3, dtype=torch.float64), V, K, 64, 64, backend="torch")
     f = K[0, 0, 0].item()
     var = (f * s / z) ** 2 + 0.3  # EWA variance in pixels^2 plus the 0.3 low-pass
     jj, ii = np.meshgrid(np.arange(64) + 0.5, np.arange(64) + 0.5)
@@ -70,7 +70,7 @@ def test_extreme_scales_and_zero_quaternions_stay_finite():
     scales[1] = 1e-6
     scales[2] = 1e3
     scales[3] = torch.tensor([1e-6, 1.0, 1e-6], dtype=torch.float64)
-    img, alpha, depth, _ = rasterize(means, quats, scales, opac, colors, V, K, 32, 24)
+    img, alpha, depth, _ = rasterize(means, quats, scales, opac, colors, V, K, 32, 24, backend="torch")
     assert torch.isfinite(img).all() and torch.isfinite(depth).all()
     assert (alpha >= 0).all() and (alpha <= 1).all()
 
@@ -81,7 +81,7 @@ def test_gradcheck_float64():
     inputs = [t.clone().requires_grad_(True) for t in (means, quats, scales, opac, colors)]
 
     def f(m, q, s, o, c):
-        img, alpha, depth, _ = rasterize(m, q, s, o, c, V, K, 16, 12)
+        img, alpha, depth, _ = rasterize(m, q, s, o, c, V, K, 16, 12, backend="torch")
         return img.sum() + 0.3 * alpha.square().sum() + 0.1 * depth.sum()
 
     assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-5, rtol=1e-4)
@@ -91,8 +91,8 @@ def test_background_and_contributions():
     V, K = camera()
     means, quats, scales, opac, colors = scene(20, seed=2)
     bg = torch.tensor([[0.2, 0.4, 0.6]], dtype=torch.float64)
-    img, alpha, _, meta = rasterize(means, quats, scales, opac, colors, V, K, 32, 24, backgrounds=bg, return_contrib=True)
-    img0, _, _, _ = rasterize(means, quats, scales, opac, colors, V, K, 32, 24)
+    img, alpha, _, meta = rasterize(means, quats, scales, opac, colors, V, K, 32, 24, backgrounds=bg, return_contrib=True, backend="torch")
+    img0, _, _, _ = rasterize(means, quats, scales, opac, colors, V, K, 32, 24, backend="torch")
     torch.testing.assert_close(img, img0 + (1 - alpha) * bg[0])
     # blending weights of all Gaussians sum to the rendered alpha over the image
     torch.testing.assert_close(meta["weight_sum"].sum(), alpha.sum())
@@ -104,8 +104,8 @@ def test_spherical_harmonics_degree_zero_is_the_colour():
     means, quats, scales, opac, colors = scene(8, seed=3)
     sh = torch.zeros(8, 16, 3, dtype=torch.float64)
     sh[:, 0] = (colors - 0.5) / C0
-    a = rasterize(means, quats, scales, opac, colors, V, K, 32, 24)[0]
-    b = rasterize(means, quats, scales, opac, sh, V, K, 32, 24, sh_degree=3)[0]
+    a = rasterize(means, quats, scales, opac, colors, V, K, 32, 24, backend="torch")[0]
+    b = rasterize(means, quats, scales, opac, sh, V, K, 32, 24, sh_degree=3, backend="torch")[0]
     torch.testing.assert_close(a, b)
     d = torch.nn.functional.normalize(torch.randn(50, 3, dtype=torch.float64), dim=-1)
     assert sh_basis(3, d).shape == (50, 16)
@@ -116,6 +116,6 @@ def test_spherical_harmonics_degree_zero_is_the_colour():
 def test_random_scenes_are_finite_and_bounded(n, seed):
     V, K = camera(24, 16, torch.float32)
     means, quats, scales, opac, colors = scene(n, seed=seed, dtype=torch.float32)
-    img, alpha, depth, _ = rasterize(means, quats, scales, opac, colors, V, K, 24, 16)
+    img, alpha, depth, _ = rasterize(means, quats, scales, opac, colors, V, K, 24, 16, backend="torch")
     assert torch.isfinite(img).all() and (alpha >= 0).all() and (alpha <= 1 + 1e-6).all()
     assert (img <= 1 + 1e-5).all()  # colours in [0, 1] composite to at most 1

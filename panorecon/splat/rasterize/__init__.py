@@ -1,17 +1,39 @@
-"""Gaussian rasterization behind one gsplat-like function. Backends so far: ``torch`` (the reference)."""
+"""Gaussian rasterization behind one gsplat-like function. Backends: ``torch`` (the pure-PyTorch reference)
+and ``cpu`` (C++ with a hand-written backward); ``auto`` picks ``cpu`` when it builds, else ``torch``."""
 from __future__ import annotations
 
+import logging
+
 import torch
+
+from . import cpu_backend
 
 from .projection import project_gaussians, quat_to_rotmat
 from .sh import sh_to_rgb
 from .torch_backend import rasterize_tiles
 
-BACKENDS = ("torch",)
+BACKENDS = ("auto", "torch", "cpu")
+log = logging.getLogger("panorecon.splat")
+_announced: set[str] = set()
+
+
+def resolve_backend(backend: str, return_contrib: bool = False) -> str:
+    """'auto' -> 'cpu' when the C++ kernel is available (and no contributions are asked), else 'torch'."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend={backend!r}: expected one of {BACKENDS}")
+    if backend == "cpu" and return_contrib:
+        raise ValueError("return_contrib is computed by the torch backend only; use backend='torch' or 'auto'")
+    if backend == "cpu" and not cpu_backend.available():
+        raise RuntimeError("backend='cpu' asked for, but the C++ rasterizer could not be built (see the log)")
+    chosen = backend if backend != "auto" else ("cpu" if not return_contrib and cpu_backend.available() else "torch")
+    if chosen not in _announced:
+        _announced.add(chosen)
+        log.info("rasterizer backend: %s%s", chosen, " (auto)" if backend == "auto" else "")
+    return chosen
 
 
 def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int, height: int, *, sh_degree=None,
-              near_plane: float = 0.01, far_plane: float = 1e10, backgrounds=None, backend: str = "torch",
+              near_plane: float = 0.01, far_plane: float = 1e10, backgrounds=None, backend: str = "auto",
               eps2d: float = 0.3, tile_size: int = 16, return_contrib: bool = False):
     """Render Gaussians into C cameras.
 
@@ -21,8 +43,7 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
     radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
     """
-    if backend not in BACKENDS:
-        raise ValueError(f"backend={backend!r}: expected one of {BACKENDS}")
+    backend = resolve_backend(backend, return_contrib)
     means2d, conics, depths, radii = project_gaussians(means, quats, scales, viewmats, Ks, width, height,
                                                        near_plane, far_plane, eps2d)
     if sh_degree is None:
@@ -34,8 +55,14 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
         dirs = means[None] - campos[:, None]
         dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         cols = sh_to_rgb(sh_degree, colors, dirs)
-    image, alpha, depth, contrib = rasterize_tiles(means2d, conics, cols, opacities, depths, radii, width, height,
-                                                   tile_size, backgrounds, return_contrib)
+    if backend == "cpu":
+        image, alpha, depth = cpu_backend.composite(means2d, conics, cols, opacities, depths, radii, width, height, tile_size)
+        if backgrounds is not None:
+            image = image + (1 - alpha) * backgrounds[:, None, None, :].to(image.dtype)
+        contrib = None
+    else:
+        image, alpha, depth, contrib = rasterize_tiles(means2d, conics, cols, opacities, depths, radii, width, height,
+                                                       tile_size, backgrounds, return_contrib)
     meta = {"means2d": means2d, "conics": conics, "depths": depths, "radii": radii, "backend": backend}
     if contrib:
         meta.update(contrib)
