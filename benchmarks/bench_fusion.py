@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import environment, in_fresh_process  # noqa: E402
+from common import emit, environment, in_fresh_process  # noqa: E402
 
 
 def box_distance(d):
@@ -69,12 +69,7 @@ def main(argv=None) -> dict:
         row["speedup_vs_reference"] = row["moge-reference"]["median_seconds"] / row["fibonacci-lsq"]["median_seconds"]
         results.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
-    out = {"benchmark": "fusion", **environment(), "results": results}
-    text = json.dumps(out, indent=2)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
-    return out
+    return emit({"benchmark": "fusion", **environment(), "results": results}, args.out)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import environment  # noqa: E402
+from common import emit, environment  # noqa: E402
 
 
 def scene(n: int, seed: int = 0):
@@ -65,13 +65,8 @@ def main(argv=None) -> dict:
         row["speedup_cpu_vs_torch"] = row["torch"]["median_seconds"] / row["cpu"]["median_seconds"]
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
-    out = {"benchmark": "rasterizer forward+backward", **environment(), "threads": torch.get_num_threads(),
-           "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "results": rows}
-    text = json.dumps(out, indent=2)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
-    return out
+    return emit({"benchmark": "rasterizer forward+backward", **environment(), "threads": torch.get_num_threads(),
+                 "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "results": rows}, args.out)
 
 
 if __name__ == "__main__":

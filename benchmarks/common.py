@@ -1,6 +1,7 @@
 """What every benchmark prints beside its numbers: machine, versions, commit."""
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
 import platform
@@ -43,3 +44,12 @@ def in_fresh_process(fn, *args) -> dict:
     out = q.get()
     p.join()
     return out
+
+
+def emit(result: dict, out_path: str | None) -> dict:
+    """Print the benchmark's JSON and, when asked, write it to ``out_path``."""
+    text = json.dumps(result, indent=2)
+    print(text)
+    if out_path:
+        Path(out_path).write_text(text + "\n")
+    return result

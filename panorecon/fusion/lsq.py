@@ -26,7 +26,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
-import cv2
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla

@@ -8,7 +8,6 @@ The panorama centre is the world origin, 1.6 m above the floor / ground.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -139,7 +138,6 @@ def _floor(z: float) -> float:
 
 # ---------------------------------------------------------------- scenes
 def bedroom(seed: int) -> SyntheticWorld:
-    rng = np.random.default_rng(seed)
     W, D, H = 4.6, 5.2, 2.7
     parts = _room((W, D, H), P.wood([0.55, 0.36, 0.2], seed=seed, axis=0),
                   P.stripes([0.86, 0.8, 0.7], [0.76, 0.68, 0.58], 0.35, seed=seed), P.noisy([0.93, 0.93, 0.9], 0.12, 2, seed))
@@ -163,7 +161,6 @@ def bedroom(seed: int) -> SyntheticWorld:
         Part(P.box((0.4, D / 2 - 0.01, _floor(1.5)), (1.4, 0.03, 1.1)), P.noisy([0.55, 0.75, 0.95], 0.2, 2, seed), emissive=True),
         Part(P.box((0.4, -D / 2 + 0.02, _floor(1.6)), (0.9, 0.03, 0.6)), P.patches([[0.2, 0.4, 0.2], [0.7, 0.5, 0.2], [0.3, 0.5, 0.7]], 0.15, seed + 6)),
     ]
-    del rng
     return SyntheticWorld(parts, outdoor=False, seed=seed)
 
 

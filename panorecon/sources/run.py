@@ -7,7 +7,6 @@ import time
 
 import numpy as np
 
-from ..fusion.affine import align_affine_views
 from ..metrics import depth_metrics, point_metrics
 from ..teachers import get_teacher
 from ..teachers.base import true_view_distance

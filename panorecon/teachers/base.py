@@ -6,7 +6,7 @@ from typing import Protocol, Sequence
 
 import numpy as np
 
-from ..geometry import PinholeCamera, ViewDepth, erp_directions
+from ..geometry import PinholeCamera, ViewDepth
 
 
 @dataclass
@@ -55,4 +55,3 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
     return d.astype(np.float32), sky
 
 
-__all__ = ["ErpDepth", "Teacher", "true_view_distance", "erp_directions"]

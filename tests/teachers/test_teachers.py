@@ -5,9 +5,8 @@ import pytest
 
 from panorecon.geometry import centred_camera, fibonacci_directions
 from panorecon.io import PanoreconInputError
-from panorecon.metrics import depth_metrics
 from panorecon.scenes import load_scene
-from panorecon.teachers import PROFILES, get_teacher, list_teachers
+from panorecon.teachers import get_teacher, list_teachers
 from panorecon.teachers.base import true_view_distance
 
 
