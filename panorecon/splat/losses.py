@@ -1,0 +1,54 @@
+"""Training losses (paper eq. 8-12): L1, SSIM and a Pearson-correlation depth term.
+
+SSIM: 11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2 on [0, 1] images, computed on the
+'valid' region (no padding) and averaged over pixels and channels.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+
+def gaussian_window(size: int = 11, sigma: float = 1.5, dtype=torch.float32) -> torch.Tensor:
+    x = torch.arange(size, dtype=dtype) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    g = g / g.sum()
+    return g[:, None] * g[None, :]
+
+
+def ssim(a: torch.Tensor, b: torch.Tensor, size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Mean SSIM of images [..., H, W, C] in [0, 1] (H, W >= ``size``)."""
+    C = a.shape[-1]
+    x = a.reshape(-1, *a.shape[-3:]).permute(0, 3, 1, 2)
+    y = b.reshape(-1, *b.shape[-3:]).permute(0, 3, 1, 2)
+    w = gaussian_window(size, sigma, a.dtype).to(a.device)[None, None].repeat(C, 1, 1, 1)
+    conv = lambda t: F.conv2d(t, w, groups=C)  # noqa: E731
+    mx, my = conv(x), conv(y)
+    sxx, syy, sxy = conv(x * x) - mx**2, conv(y * y) - my**2, conv(x * y) - mx * my
+    c1, c2 = 0.01**2, 0.03**2
+    m = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sxx + syy + c2))
+    return m.mean()
+
+
+def pearson_depth_loss(rendered: torch.Tensor, teacher: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+    """1 - Pearson correlation between rendered and teacher depth over valid pixels (eq. 10-11): invariant to
+    the teacher's scale and shift. Fewer than 2 valid pixels or a constant map give 0 loss."""
+    ok = torch.isfinite(teacher) & torch.isfinite(rendered)
+    if valid is not None:
+        ok = ok & valid
+    if ok.sum() < 2:
+        return rendered.sum() * 0
+    x, y = rendered[ok], teacher[ok]
+    x, y = x - x.mean(), y - y.mean()
+    denom = torch.sqrt((x * x).sum() * (y * y).sum())
+    if denom <= 1e-12:
+        return rendered.sum() * 0
+    return 1 - (x * y).sum() / denom
+
+
+def total_loss(render, target, depth=None, teacher_depth=None, valid=None, w_l1=0.8, w_ssim=0.2, w_depth=0.05):
+    """w_l1 L1 + w_ssim (1 - SSIM) + w_depth (1 - Pearson) (eq. 8); the 3DGS default 0.8 / 0.2, depth 0.05."""
+    loss = w_l1 * (render - target).abs().mean() + w_ssim * (1 - ssim(render, target))
+    if w_depth and depth is not None and teacher_depth is not None:
+        loss = loss + w_depth * pearson_depth_loss(depth, teacher_depth, valid)
+    return loss

@@ -1,0 +1,73 @@
+"""The Gaussian model: parameters in their optimisation spaces, initialised from any ``PointCloud``.
+
+means [N,3] metres; quats [N,4] wxyz (unnormalised); log_scales [N,3] (log metres); logit_opacities [N];
+sh0 [N,1,3] (degree-0 SH of the colour) and shN [N,(d+1)^2-1,3]. float32.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..geometry import PointCloud
+from .rasterize.sh import C0
+
+
+def nearest_neighbour_scale(xyz: np.ndarray, k: int = 3) -> np.ndarray:
+    """Mean distance (metres) from each point to its k nearest other points, [N] float64 (Open3D KNN)."""
+    import open3d as o3d
+
+    pts = o3d.core.Tensor(np.ascontiguousarray(xyz, dtype=np.float64))
+    nns = o3d.core.nns.NearestNeighborSearch(pts)
+    nns.knn_index()
+    _, d2 = nns.knn_search(pts, min(k + 1, len(xyz)))
+    d = np.sqrt(d2.numpy()[:, 1:])  # drop the point itself
+    return d.mean(1) if d.shape[1] else np.ones(len(xyz))
+
+
+class GaussianModel(nn.Module):
+    def __init__(self, means, quats, log_scales, logit_opacities, sh0, shN):
+        super().__init__()
+        self.means = nn.Parameter(means)
+        self.quats = nn.Parameter(quats)
+        self.log_scales = nn.Parameter(log_scales)
+        self.logit_opacities = nn.Parameter(logit_opacities)
+        self.sh0 = nn.Parameter(sh0)
+        self.shN = nn.Parameter(shN)
+
+    @classmethod
+    def from_point_cloud(cls, pc: PointCloud, sh_degree: int = 3, init_opacity: float = 0.1, min_scale: float = 1e-7):
+        """Isotropic Gaussians at the points: scale = mean distance to the 3 nearest neighbours (at least
+        ``min_scale`` metres, so duplicate points stay finite), colour in the DC band, opacity ``init_opacity``."""
+        if len(pc) == 0:
+            raise ValueError("GaussianModel.from_point_cloud: the point cloud is empty")
+        if not 0 <= sh_degree <= 3:
+            raise ValueError(f"sh_degree={sh_degree}: expected 0..3")
+        if not 0 < init_opacity < 1:
+            raise ValueError(f"init_opacity={init_opacity}: expected a value in (0, 1)")
+        n = len(pc)
+        scale = np.maximum(nearest_neighbour_scale(pc.xyz), min_scale)
+        log_s = torch.from_numpy(np.log(scale)).float()[:, None].repeat(1, 3)
+        quats = torch.zeros(n, 4)
+        quats[:, 0] = 1
+        logit = torch.full((n,), float(np.log(init_opacity / (1 - init_opacity))))
+        sh0 = ((torch.from_numpy(pc.rgb).float() - 0.5) / C0)[:, None, :]
+        shN = torch.zeros(n, (sh_degree + 1) ** 2 - 1, 3)
+        return cls(torch.from_numpy(pc.xyz).float(), quats, log_s, logit, sh0, shN)
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    @property
+    def sh_degree(self) -> int:
+        return int(round((self.shN.shape[1] + 1) ** 0.5)) - 1
+
+    def scales(self) -> torch.Tensor:
+        return torch.exp(self.log_scales)
+
+    def opacities(self) -> torch.Tensor:
+        return torch.sigmoid(self.logit_opacities)
+
+    def sh(self) -> torch.Tensor:
+        """All SH coefficients [N, (d+1)^2, 3]."""
+        return torch.cat([self.sh0, self.shN], 1)

@@ -1,0 +1,115 @@
+import numpy as np
+import pytest
+import torch
+
+from panorecon.geometry import PointCloud, intrinsics_from_fov, look_at_viewmat
+from panorecon.io import PanoreconInputError
+from panorecon.splat.losses import gaussian_window, pearson_depth_loss, ssim, total_loss
+from panorecon.splat.model import GaussianModel
+from panorecon.splat.ply import load_ply, ply_properties, save_ply
+from panorecon.splat.rasterize import rasterize
+
+
+def grid_cloud(spacing=0.1, n=6):
+    g = np.stack(np.meshgrid(*[np.arange(n) * spacing] * 3, indexing="ij"), -1).reshape(-1, 3) + [2.0, -0.25, -0.25]
+    return PointCloud(g, np.random.default_rng(0).random((len(g), 3)))
+
+
+class TestModel:
+    def test_init_from_point_cloud(self):
+        pc = grid_cloud()
+        m = GaussianModel.from_point_cloud(pc, sh_degree=2, init_opacity=0.1)
+        assert len(m) == len(pc) and m.sh().shape == (len(pc), 9, 3) and m.sh_degree == 2
+        # interior points of a grid have their 3 nearest neighbours at exactly the spacing
+        assert torch.median(m.scales()[:, 0]).item() == pytest.approx(0.1, rel=1e-5)
+        torch.testing.assert_close(m.opacities(), torch.full((len(pc),), 0.1))
+        torch.testing.assert_close(m.sh0[:, 0] * 0.28209479177387814 + 0.5, torch.from_numpy(pc.rgb).float())
+
+    def test_duplicate_points_stay_finite_and_bad_input(self):
+        pc = PointCloud(np.zeros((5, 3)), np.zeros((5, 3)))
+        assert torch.isfinite(GaussianModel.from_point_cloud(pc).log_scales).all()
+        with pytest.raises(ValueError, match="empty"):
+            GaussianModel.from_point_cloud(PointCloud(np.zeros((0, 3)), np.zeros((0, 3))))
+
+
+class TestPly:
+    def test_header_is_the_standard_3dgs_layout(self, tmp_path):
+        m = GaussianModel.from_point_cloud(grid_cloud(n=3), sh_degree=3)
+        save_ply(m, tmp_path / "g.ply")
+        header = (tmp_path / "g.ply").read_bytes().split(b"end_header\n")[0].decode()
+        props = [ln.split()[2] for ln in header.splitlines() if ln.startswith("property")]
+        assert props[:9] == ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        assert props[9:54] == [f"f_rest_{i}" for i in range(45)]
+        assert props[54:] == ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+        assert "format binary_little_endian 1.0" in header and props == ply_properties(45)
+
+    def test_round_trip_gives_identical_renders(self, tmp_path):
+        m = GaussianModel.from_point_cloud(grid_cloud(), sh_degree=3)
+        with torch.no_grad():
+            m.shN.normal_(0, 0.2)
+            m.quats.normal_()
+        save_ply(m, tmp_path / "g.ply")
+        m2 = load_ply(tmp_path / "g.ply")
+        for a, b in zip(m.parameters(), m2.parameters()):
+            torch.testing.assert_close(a.detach(), b.detach())
+        K = torch.tensor(intrinsics_from_fov(32, 32, 60), dtype=torch.float32)[None]
+        V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
+
+        def render(g):
+            return rasterize(g.means, g.quats, g.scales(), g.opacities(), g.sh(), V, K, 32, 32, sh_degree=3, backend="torch")[0]
+
+        torch.testing.assert_close(render(m), render(m2))
+
+    def test_truncated_or_foreign_files(self, tmp_path):
+        save_ply(GaussianModel.from_point_cloud(grid_cloud(n=3)), tmp_path / "g.ply")
+        data = (tmp_path / "g.ply").read_bytes()
+        (tmp_path / "cut.ply").write_bytes(data[:-50])
+        with pytest.raises(PanoreconInputError, match="truncated"):
+            load_ply(tmp_path / "cut.ply")
+        grid_cloud(n=3).save_ply(tmp_path / "points.ply")
+        with pytest.raises(PanoreconInputError, match="3DGS"):
+            load_ply(tmp_path / "points.ply")
+
+
+def ssim_slow(a, b, size=11, sigma=1.5):
+    """SSIM by explicit windows (float64 numpy): the reference for the convolutional version."""
+    w = gaussian_window(size, sigma, torch.float64).numpy()
+    H, W, C = a.shape
+    vals = []
+    for ch in range(C):
+        for i in range(H - size + 1):
+            for j in range(W - size + 1):
+                x, y = a[i:i + size, j:j + size, ch], b[i:i + size, j:j + size, ch]
+                mx, my = (w * x).sum(), (w * y).sum()
+                sxx, syy, sxy = (w * x * x).sum() - mx**2, (w * y * y).sum() - my**2, (w * x * y).sum() - mx * my
+                vals.append(((2 * mx * my + 1e-4) * (2 * sxy + 9e-4)) / ((mx**2 + my**2 + 1e-4) * (sxx + syy + 9e-4)))
+    return np.mean(vals)
+
+
+class TestLosses:
+    def test_ssim_matches_the_windowed_reference(self):
+        rng = np.random.default_rng(0)
+        a = rng.random((16, 14, 3))
+        b = np.clip(a + 0.1 * rng.standard_normal(a.shape), 0, 1)
+        got = ssim(torch.from_numpy(a), torch.from_numpy(b)).item()
+        assert got == pytest.approx(ssim_slow(a, b), abs=1e-10)
+        assert ssim(torch.from_numpy(a), torch.from_numpy(a)).item() == pytest.approx(1.0)
+
+    def test_pearson_is_scale_and_shift_invariant(self):
+        rng = np.random.default_rng(1)
+        x = torch.from_numpy(rng.random((20, 20)))
+        y = x + 0.3 * torch.from_numpy(rng.random((20, 20)))
+        ref = 1 - np.corrcoef(x.numpy().ravel(), y.numpy().ravel())[0, 1]
+        assert pearson_depth_loss(x, y).item() == pytest.approx(ref, abs=1e-12)
+        assert pearson_depth_loss(x, 7 * y - 3).item() == pytest.approx(ref, abs=1e-12)
+        y_nan = y.clone()
+        y_nan[0, 0] = float("nan")
+        assert torch.isfinite(pearson_depth_loss(x, y_nan))
+        assert pearson_depth_loss(x, torch.ones_like(x)).item() == 0
+
+    def test_total_loss_gradients_are_finite(self):
+        r = torch.rand(1, 16, 16, 3, requires_grad=True)
+        d = torch.rand(16, 16, requires_grad=True)
+        loss = total_loss(r, torch.rand(1, 16, 16, 3), d, torch.rand(16, 16))
+        loss.backward()
+        assert torch.isfinite(r.grad).all() and torch.isfinite(d.grad).all()
