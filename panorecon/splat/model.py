@@ -53,7 +53,8 @@ class GaussianModel(nn.Module):
         logit = torch.full((n,), float(np.log(init_opacity / (1 - init_opacity))))
         sh0 = ((torch.from_numpy(pc.rgb).float() - 0.5) / C0)[:, None, :]
         shN = torch.zeros(n, (sh_degree + 1) ** 2 - 1, 3)
-        return cls(torch.from_numpy(pc.xyz).float(), quats, log_s, logit, sh0, shN)
+        # copy: the parameters must never share memory with the caller's point cloud
+        return cls(torch.tensor(pc.xyz, dtype=torch.float32), quats, log_s, logit, sh0, shN)
 
     def __len__(self) -> int:
         return self.means.shape[0]

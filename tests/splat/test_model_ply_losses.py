@@ -113,3 +113,12 @@ class TestLosses:
         loss = total_loss(r, torch.rand(1, 16, 16, 3), d, torch.rand(16, 16))
         loss.backward()
         assert torch.isfinite(r.grad).all() and torch.isfinite(d.grad).all()
+
+
+def test_training_the_model_never_touches_the_point_cloud():
+    pc = grid_cloud(n=3)
+    before = pc.xyz.copy()
+    m = GaussianModel.from_point_cloud(pc)
+    with torch.no_grad():
+        m.means += 1.0
+    np.testing.assert_array_equal(pc.xyz, before)

@@ -1,0 +1,180 @@
+"""The shared Gaussian trainer: every point source is judged through it (paper §2.3, §2.5)."""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import resource
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..io import atomic_write, write_image, write_json
+from .labels import LabelView, make_heldout_views, make_pseudo_labels
+from .losses import ssim, total_loss
+from .model import GaussianModel
+from .ply import save_ply
+from .rasterize import rasterize, resolve_backend
+from .strategy import DefaultStrategy
+
+
+def _f(default, help: str):
+    return field(default=default, metadata={"help": help})
+
+
+@dataclass
+class TrainConfig:
+    iters: int = _f(3000, "optimisation steps (one pseudo-label view per step)")
+    res: int = _f(128, "pseudo-label and held-out view size in pixels (square)")
+    labels: int = _f(240, "number of dense pseudo-label views (Table 5: 120-360)")
+    fov_deg: float = _f(60.0, "field of view of the label and held-out views (degrees)")
+    layout: str = _f("fibonacci", "layout of the pseudo-label directions")
+    backend: str = _f("auto", "rasterizer backend: auto, cpu or torch")
+    sh_degree: int = _f(3, "largest SH degree; the active degree grows every sh_increase_every steps")
+    sh_increase_every: int = _f(1000, "steps between SH degree increases")
+    strategy: str = _f("default", "densify/prune strategy: default (3DGS)")
+    w_l1: float = _f(0.8, "weight of L1 (eq. 9)")
+    w_ssim: float = _f(0.2, "weight of 1 - SSIM (eq. 12)")
+    w_depth: float = _f(0.05, "weight of the Pearson depth term (eq. 10-11)")
+    lr_means: float = _f(1.6e-4, "initial means learning rate, times the scene extent")
+    lr_means_final: float = _f(1.6e-6, "final means learning rate (exponential decay), times the extent")
+    lr_quats: float = _f(1e-3, "quaternion learning rate")
+    lr_scales: float = _f(5e-3, "log-scale learning rate")
+    lr_opacities: float = _f(5e-2, "logit-opacity learning rate")
+    lr_sh0: float = _f(2.5e-3, "DC colour learning rate")
+    lr_shN: float = _f(2.5e-3 / 20, "higher SH bands learning rate")
+    checkpoint_every: int = _f(500, "steps between checkpoints (out_dir/ckpt.pt)")
+    heldout: int = _f(8, "held-out true views (synthetic scenes only)")
+    history_every: int = _f(100, "steps between PSNR history samples")
+    seed: int = _f(0, "random seed")
+
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(dataclasses.asdict(self), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    mse = float(torch.mean((a - b) ** 2))
+    return float("inf") if mse == 0 else 10 * math.log10(1.0 / mse)
+
+
+def lpips_status() -> str:
+    """LPIPS needs the AlexNet backbone weights in the local torch cache; none can be downloaded here."""
+    try:
+        import lpips  # noqa: F401
+    except ImportError:
+        return "n/a: lpips package not installed (pip install 'panorecon[metrics]')"
+    hub = Path(torch.hub.get_dir()) / "checkpoints"
+    if not any(hub.glob("alexnet-*.pth")):
+        return "n/a: no LPIPS weights"
+    return "available"
+
+
+def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_degree: int, backend: str):
+    V = torch.tensor(np.stack([v.camera.viewmat for v in views]), dtype=torch.float32)
+    K = torch.tensor(np.stack([v.camera.K for v in views]), dtype=torch.float32)
+    return rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K, cfg.res, cfg.res,
+                     sh_degree=sh_degree, backend=backend)
+
+
+def _evaluate(model, views, cfg, backend) -> dict:
+    if not views:
+        return {}
+    ps, ss = [], []
+    with torch.no_grad():
+        for v in views:
+            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
+            t = torch.from_numpy(v.rgb)
+            ps.append(psnr(img, t))
+            ss.append(float(ssim(img, t)))
+    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "lpips": lpips_status(), "views": len(views)}
+
+
+def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True) -> dict:
+    """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
+    (3DGS layout), renders/, metrics.json and ckpt.pt (resumed when present and made by the same config)."""
+    from tqdm import tqdm
+
+    cfg = config
+    if cfg.strategy != "default":
+        raise ValueError(f"strategy={cfg.strategy!r}: expected 'default'")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    seconds = {}
+    backend = resolve_backend(cfg.backend)
+    t = time.perf_counter()
+    labels = make_pseudo_labels(scene, cfg.labels, cfg.res, cfg.fov_deg, cfg.layout, depth_fn)
+    heldout = make_heldout_views(scene, cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed) if scene.world is not None and cfg.heldout else []
+    seconds["labels"] = time.perf_counter() - t
+    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree)
+    extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
+    groups = [("means", cfg.lr_means * extent), ("quats", cfg.lr_quats), ("log_scales", cfg.lr_scales),
+              ("logit_opacities", cfg.lr_opacities), ("sh0", cfg.lr_sh0), ("shN", cfg.lr_shN)]
+    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15)
+    strategy = DefaultStrategy(refine_stop=cfg.iters // 2)
+    start, history = 0, []
+    ckpt = out / "ckpt.pt"
+    if ckpt.exists():
+        state = torch.load(ckpt, weights_only=False)
+        if state["config"] != cfg.digest():
+            raise ValueError(f"{ckpt} was written by a different configuration; remove it or use another --out")
+        model = GaussianModel(*[state["model"][n] for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
+        opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15)
+        opt.load_state_dict(state["optimizer"])
+        start, history = state["iteration"], state["history"]
+        strategy.grad_sum, strategy.count = state["strategy"]
+    t = time.perf_counter()
+    torch.manual_seed(cfg.seed + start)  # split sampling; a resumed run reseeds from its iteration
+    gen = np.random.default_rng(cfg.seed)
+    order = gen.integers(0, len(labels), size=cfg.iters)
+    bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
+    for it in bar:
+        lr = cfg.lr_means * extent * (cfg.lr_means_final / cfg.lr_means) ** (it / max(cfg.iters - 1, 1))
+        opt.param_groups[0]["lr"] = lr
+        v = labels[order[it]]
+        deg = min(cfg.sh_degree, it // cfg.sh_increase_every)
+        img, alpha, depth, meta = _render(model, [v], cfg, deg, backend)
+        meta["means2d"].retain_grad()
+        target = torch.from_numpy(v.rgb)[None]
+        teacher = None if v.depth is None else torch.from_numpy(v.depth)
+        expected_z = (depth / alpha.clamp_min(1e-6))[0, ..., 0]
+        loss = total_loss(img, target, expected_z, teacher, alpha[0, ..., 0].detach() > 0.5,
+                          cfg.w_l1, cfg.w_ssim, cfg.w_depth if teacher is not None else 0.0)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite loss at iteration {it}: check the point cloud and learning rates")
+        loss.backward()
+        strategy.observe(model, meta, cfg.res, cfg.res)
+        opt.step()
+        opt.zero_grad(set_to_none=True)
+        strategy.step(model, opt, it + 1, extent)
+        if cfg.history_every and (it + 1) % cfg.history_every == 0:
+            history.append({"iteration": it + 1, "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
+            bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
+        if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
+            with atomic_write(ckpt) as tmp:
+                torch.save({"iteration": it + 1, "config": cfg.digest(), "history": history, "optimizer": opt.state_dict(),
+                            "strategy": (strategy.grad_sum, strategy.count),
+                            "model": {n: p.detach() for n, p in model.named_parameters()}}, tmp)
+    seconds["train"] = time.perf_counter() - t
+    t = time.perf_counter()
+    metrics = {"pseudo-label": _evaluate(model, labels, cfg, backend),
+               "held-out": _evaluate(model, heldout, cfg, backend) if heldout else "n/a: scene has no ground-truth world"}
+    seconds["eval"] = time.perf_counter() - t
+    save_ply(model, out / "point_cloud.ply")
+    with torch.no_grad():
+        for name, views in (("label", labels[:3]), ("heldout", heldout[:3])):
+            for k, v in enumerate(views):
+                img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).numpy()
+                write_image(out / "renders" / f"{name}_{k}.png", (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8))
+    seconds["total"] = time.perf_counter() - t0
+    metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), backend=backend, strategy=cfg.strategy,
+                   peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, history=history,
+                   config=dataclasses.asdict(cfg))
+    write_json(out / "metrics.json", metrics)
+    ckpt.unlink(missing_ok=True)
+    return metrics

@@ -1,0 +1,97 @@
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from panorecon.scenes import load_scene
+from panorecon.sources import run_source
+from panorecon.splat import trainer as trainer_mod
+from panorecon.splat.ply import load_ply
+from panorecon.splat.strategy import DefaultStrategy, edit_parameters
+from panorecon.splat.model import GaussianModel
+from panorecon.splat.trainer import TrainConfig, train
+from panorecon.teachers import get_teacher
+
+
+@pytest.fixture(scope="module")
+def setup():
+    scene = load_scene("bedroom", 128)
+    pc, _ = run_source(scene, "fibonacci", "sim:clean")
+    teacher = get_teacher("sim:clean")
+    depth_fn = lambda cams: [v.depth for v in teacher.predict_views(scene, cams)]  # noqa: E731
+    return scene, pc.subset(slice(None, None, 4)), depth_fn
+
+
+def cfg(**kw):
+    base = dict(iters=60, res=32, labels=24, heldout=2, checkpoint_every=20, history_every=20, sh_degree=1,
+                sh_increase_every=30)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_training_improves_and_writes_outputs(setup, tmp_path):
+    scene, pc, depth_fn = setup
+    before = train(scene, pc, cfg(iters=1), tmp_path / "a", depth_fn, progress=False)
+    after = train(scene, pc, cfg(), tmp_path / "b", depth_fn, progress=False)
+    assert after["pseudo-label"]["psnr"] > before["pseudo-label"]["psnr"] + 2
+    assert isinstance(after["held-out"]["psnr"], float)
+    assert after["pseudo-label"]["lpips"].startswith("n/a")
+    m = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert {"seconds", "iterations", "gaussians", "peak_rss_mb", "history"} <= set(m)
+    assert (tmp_path / "b" / "renders" / "label_0.png").is_file() and not (tmp_path / "b" / "ckpt.pt").exists()
+    assert len(load_ply(tmp_path / "b" / "point_cloud.ply")) == after["gaussians"]
+
+
+def test_an_interrupted_run_resumes_to_the_same_state(setup, tmp_path, monkeypatch):
+    scene, pc, depth_fn = setup
+    full = train(scene, pc, cfg(), tmp_path / "full", depth_fn, progress=False)
+    calls = {"n": 0}
+    real = trainer_mod.total_loss
+
+    def interrupt(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 45:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(trainer_mod, "total_loss", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False)
+    assert (tmp_path / "resumed" / "ckpt.pt").exists()
+    monkeypatch.setattr(trainer_mod, "total_loss", real)
+    resumed = train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False)
+    a, b = load_ply(tmp_path / "full" / "point_cloud.ply"), load_ply(tmp_path / "resumed" / "point_cloud.ply")
+    for x, y in zip(a.parameters(), b.parameters()):
+        torch.testing.assert_close(x, y, atol=1e-6, rtol=1e-5)
+    assert resumed["pseudo-label"]["psnr"] == pytest.approx(full["pseudo-label"]["psnr"], abs=1e-4)
+    with pytest.raises(ValueError, match="different configuration"):
+        torch.save({"config": "other"}, tmp_path / "resumed" / "ckpt.pt")
+        train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False)
+
+
+def test_strategy_clones_splits_prunes_and_keeps_adam_aligned():
+    from panorecon.geometry import PointCloud
+
+    pc = PointCloud(np.random.default_rng(0).normal(size=(6, 3)) + [3, 0, 0], np.full((6, 3), 0.5))
+    model = GaussianModel.from_point_cloud(pc, sh_degree=1)
+    with torch.no_grad():
+        model.log_scales[:3] = np.log(0.001)  # small: cloned
+        model.log_scales[3:] = np.log(1.0)    # large: split
+        model.logit_opacities[5] = -10.0      # transparent: pruned
+    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": 1e-3, "name": n}
+                            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
+    (model.means.sum() + model.sh().sum() + model.opacities().sum() + model.scales().sum() + model.quats.sum()).backward()
+    opt.step()
+    s = DefaultStrategy(refine_start=0, refine_every=1)
+    s.grad_sum = torch.tensor([1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
+    s.count = torch.ones(6)
+    out = s.step(model, opt, 1, extent=1.0)
+    assert out == {"cloned": 2, "split": 2, "pruned": 1, "reset": False}
+    # 6 - 2 split - 1 pruned + 2 clones + 2 x 2 split halves
+    assert len(model) == 9
+    for group in opt.param_groups:
+        p = group["params"][0]
+        assert p is getattr(model, group["name"]) and opt.state[p]["exp_avg"].shape == p.shape
+    edit_parameters(model, opt, torch.ones(len(model), dtype=torch.bool))
+    assert len(model) == 9
