@@ -141,6 +141,36 @@ def cmd_points(args) -> int:
     return 0
 
 
+def cmd_train(args) -> int:
+    import dataclasses
+
+    from .scenes import load_scene
+    from .sources import get_source, run_source
+    from .splat.trainer import TrainConfig, train
+    from .teachers import get_teacher
+
+    spec = get_source(args.source)
+    if spec.uses_teacher and not args.teacher:
+        raise PanoreconInputError(f"source {args.source!r} needs --teacher (see `panorecon teachers list`)")
+    scene = load_scene(args.scene, args.width)
+    pc, report = run_source(scene, args.source, args.teacher, args.views)
+    teacher = get_teacher(args.teacher) if args.teacher else None
+
+    def depth_fn(cameras):  # z-like depth for the Pearson term (scale and shift do not matter to it)
+        with np.errstate(divide="ignore"):
+            return [v.depth if v.kind != "disparity" else 1.0 / v.depth for v in teacher.predict_views(scene, cameras)]
+
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
+    m = train(scene, pc, cfg, args.out, depth_fn if teacher else None, progress=not args.no_progress)
+    held = m["held-out"]
+    held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
+    print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
+          f"{m['pseudo-label']['ssim']:.3f}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
+          f"{m['seconds']['total']:.1f} s; peak {m['peak_rss_mb']:.0f} MB -> {args.out}")
+    return 0
+
+
 # ---------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="panorecon", description=__doc__)
@@ -185,6 +215,21 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("--out", required=True, help="output .ply")
     pt.add_argument("--report", default=None, help="output report .json")
     pt.set_defaults(fn=cmd_points)
+
+    tr = sub.add_parser("train", help="fit Gaussians from a point source to the scene's pseudo-labels")
+    tr.add_argument("scene")
+    tr.add_argument("--source", required=True)
+    tr.add_argument("--teacher", default=None, help="depth teacher for the source and the Pearson depth term")
+    tr.add_argument("--views", type=int, default=None, help="views of the point source")
+    tr.add_argument("--width", type=int, default=None, help="ERP width")
+    tr.add_argument("--iters", type=int, default=None, help="optimisation steps (default 3000)")
+    tr.add_argument("--res", type=int, default=None, help="label view size in pixels (default 128)")
+    tr.add_argument("--labels", type=int, default=None, help="pseudo-label views (default 240)")
+    tr.add_argument("--backend", choices=["auto", "torch", "cpu"], default=None)
+    tr.add_argument("--seed", type=int, default=None)
+    tr.add_argument("--no-progress", action="store_true")
+    tr.add_argument("--out", required=True, help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
+    tr.set_defaults(fn=cmd_train)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")

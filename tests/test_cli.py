@@ -80,3 +80,14 @@ def test_demo_runs_the_main_job(tmp_path):
     for name in ("pano.png", "distance.npy", "mask.png", "gt_cloud.ply", "gt_cloud.png", "fibonacci_cloud.ply",
                  "fibonacci_report.json", "fibonacci_cloud.png"):
         assert (out / name).is_file(), name
+
+
+def test_train_command(tmp_path, capsys):
+    import json
+
+    argv = ["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--width", "128", "--iters", "20",
+            "--res", "32", "--labels", "16", "--no-progress", "--out", str(tmp_path / "t")]
+    assert main(argv) == 0
+    m = json.loads((tmp_path / "t" / "metrics.json").read_text())
+    assert m["iterations"] == 20 and "psnr" in m["pseudo-label"] and "psnr" in m["held-out"]
+    assert "pseudo-label PSNR" in capsys.readouterr().out
