@@ -78,8 +78,9 @@ def cmd_inspect(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    """The main job on the built-in default scene: render, ground-truth cloud and its screenshot, then the
-    method's initial cloud (20 Fibonacci views, simulated teacher, log-depth fusion) with its report."""
+    """The main job on the built-in default scene: render, ground-truth cloud and its screenshot, the method's
+    initial cloud (20 Fibonacci views, simulated teacher, log-depth fusion) with its report, and a short
+    Gaussian training from it (point_cloud.ply, renders/, metrics.json)."""
     from .scenes import DEFAULT_SCENE
 
     out = Path(args.out)
@@ -94,8 +95,9 @@ def cmd_demo(args) -> int:
     clip_z = None if outdoor else float(0.5 * gt.xyz[:, 2].max())
     cmd_inspect(argparse.Namespace(cloud=str(out / "gt_cloud.ply"), screenshot=str(out / "gt_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
-    cmd_points(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, view_size=None,
-                                  width=args.width, out=str(out / "fibonacci_cloud.ply"), report=str(out / "fibonacci_report.json")))
+    cmd_train(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, width=args.width,
+                                 iters=args.iters, res=64, labels=120, backend=None, seed=None, no_progress=False,
+                                 out=str(out)))
     cmd_inspect(argparse.Namespace(cloud=str(out / "fibonacci_cloud.ply"), screenshot=str(out / "fibonacci_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
     return 0
@@ -118,26 +120,34 @@ def cmd_sources_list(args) -> int:
     return 0
 
 
-def cmd_points(args) -> int:
+def _initial_cloud(args, scene, cloud_path, report_path):
+    """Run the point source, write its cloud (and report) and print one summary line -> (PointCloud, report)."""
     from .io import write_json
-    from .scenes import load_scene
     from .sources import get_source, run_source
 
     spec = get_source(args.source)
     if spec.uses_teacher and not args.teacher:
         raise PanoreconInputError(f"source {args.source!r} needs --teacher (see `panorecon teachers list`)")
-    scene = load_scene(args.scene, args.width)
-    pc, report = run_source(scene, args.source, args.teacher, args.views, view_size=args.view_size)
-    pc.save_ply(args.out)
-    if args.report:
-        write_json(args.report, report)
+    pc, report = run_source(scene, args.source, args.teacher, args.views, view_size=getattr(args, "view_size", None))
+    pc.save_ply(cloud_path)
+    if report_path:
+        write_json(report_path, report)
     depth = report.get("depth")
     d = (f"AbsRel {depth['abs_rel']:.4f}, delta1 {depth['delta1']:.3f}" if isinstance(depth, dict)
          and isinstance(depth.get("abs_rel"), float) else str(depth))
     pts = report["points"]
     chamfer = f"{pts['chamfer']:.4f} m" if isinstance(pts.get("chamfer"), float) else pts.get("chamfer")
     print(f"{scene.name} / {args.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}, "
-          f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {args.out}")
+          f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {cloud_path}")
+    return pc, report
+
+
+def cmd_points(args) -> int:
+    from .scenes import load_scene
+    from .sources import get_source
+
+    get_source(args.source)  # an unknown source fails before the scene is rendered
+    _initial_cloud(args, load_scene(args.scene, args.width), args.out, args.report)
     return 0
 
 
@@ -145,15 +155,12 @@ def cmd_train(args) -> int:
     import dataclasses
 
     from .scenes import load_scene
-    from .sources import get_source, run_source
     from .splat.trainer import TrainConfig, train
     from .teachers import get_teacher
 
-    spec = get_source(args.source)
-    if spec.uses_teacher and not args.teacher:
-        raise PanoreconInputError(f"source {args.source!r} needs --teacher (see `panorecon teachers list`)")
     scene = load_scene(args.scene, args.width)
-    pc, report = run_source(scene, args.source, args.teacher, args.views)
+    out = Path(args.out)
+    pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
     teacher = get_teacher(args.teacher) if args.teacher else None
 
     def depth_fn(cameras):  # z-like depth for the Pearson term (scale and shift do not matter to it)
@@ -236,6 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--scene", default=None, help="scene name (default: the built-in default scene)")
     d.add_argument("--width", type=int, default=1024)
     d.add_argument("--teacher", default="sim:relative", help="depth teacher for the method's point cloud")
+    d.add_argument("--iters", type=int, default=300, help="training steps (64 px labels)")
     d.set_defaults(fn=cmd_demo)
     return p
 

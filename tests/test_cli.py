@@ -76,9 +76,9 @@ def test_lists(capsys):
 
 def test_demo_runs_the_main_job(tmp_path):
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--width", "128"]) == 0
+    assert main(["demo", "--out", str(out), "--width", "128", "--iters", "10"]) == 0
     for name in ("pano.png", "distance.npy", "mask.png", "gt_cloud.ply", "gt_cloud.png", "fibonacci_cloud.ply",
-                 "fibonacci_report.json", "fibonacci_cloud.png"):
+                 "fibonacci_report.json", "fibonacci_cloud.png", "point_cloud.ply", "metrics.json", "renders/label_0.png"):
         assert (out / name).is_file(), name
 
 
