@@ -241,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")
     d.add_argument("--scene", default=None, help="scene name (default: the built-in default scene)")
-    d.add_argument("--width", type=int, default=1024)
+    d.add_argument("--width", type=int, default=512)
     d.add_argument("--teacher", default="sim:relative", help="depth teacher for the method's point cloud")
     d.add_argument("--iters", type=int, default=300, help="training steps (64 px labels)")
     d.set_defaults(fn=cmd_demo)
