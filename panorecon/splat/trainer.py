@@ -20,7 +20,7 @@ from .losses import ssim, total_loss
 from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
-from .strategy import DefaultStrategy
+from .strategy import STRATEGIES
 
 
 def _f(default, help: str):
@@ -37,7 +37,7 @@ class TrainConfig:
     backend: str = _f("auto", "rasterizer backend: auto, cpu or torch")
     sh_degree: int = _f(3, "largest SH degree; the active degree grows every sh_increase_every steps")
     sh_increase_every: int = _f(1000, "steps between SH degree increases")
-    strategy: str = _f("default", "densify/prune strategy: default (3DGS)")
+    strategy: str = _f("default", "densify/prune strategy: default (3DGS) or adaptive (§2.5 contribution pruning)")
     w_l1: float = _f(0.8, "weight of L1 (eq. 9)")
     w_ssim: float = _f(0.2, "weight of 1 - SSIM (eq. 12)")
     w_depth: float = _f(0.05, "weight of the Pearson depth term (eq. 10-11)")
@@ -74,11 +74,12 @@ def lpips_status() -> str:
     return "available"
 
 
-def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_degree: int, backend: str):
+def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_degree: int, backend: str,
+            return_contrib: bool = False):
     V = torch.tensor(np.stack([v.camera.viewmat for v in views]), dtype=torch.float32)
     K = torch.tensor(np.stack([v.camera.K for v in views]), dtype=torch.float32)
     return rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K, cfg.res, cfg.res,
-                     sh_degree=sh_degree, backend=backend)
+                     sh_degree=sh_degree, backend=backend, return_contrib=return_contrib)
 
 
 def _evaluate(model, views, cfg, backend) -> dict:
@@ -100,8 +101,8 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     from tqdm import tqdm
 
     cfg = config
-    if cfg.strategy != "default":
-        raise ValueError(f"strategy={cfg.strategy!r}: expected 'default'")
+    if cfg.strategy not in STRATEGIES:
+        raise ValueError(f"strategy={cfg.strategy!r}: expected one of {', '.join(STRATEGIES)}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -116,7 +117,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     groups = [("means", cfg.lr_means * extent), ("quats", cfg.lr_quats), ("log_scales", cfg.lr_scales),
               ("logit_opacities", cfg.lr_opacities), ("sh0", cfg.lr_sh0), ("shN", cfg.lr_shN)]
     opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15)
-    strategy = DefaultStrategy(refine_stop=cfg.iters // 2)
+    strategy = STRATEGIES[cfg.strategy](refine_stop=cfg.iters // 2)
     start, history = 0, []
     ckpt = out / "ckpt.pt"
     if ckpt.exists():
@@ -127,7 +128,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15)
         opt.load_state_dict(state["optimizer"])
         start, history = state["iteration"], state["history"]
-        strategy.grad_sum, strategy.count = state["strategy"]
+        strategy.load_state_dict(state["strategy"])
     t = time.perf_counter()
     torch.manual_seed(cfg.seed + start)  # split sampling; a resumed run reseeds from its iteration
     gen = np.random.default_rng(cfg.seed)
@@ -138,7 +139,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         opt.param_groups[0]["lr"] = lr
         v = labels[order[it]]
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every)
-        img, alpha, depth, meta = _render(model, [v], cfg, deg, backend)
+        img, alpha, depth, meta = _render(model, [v], cfg, deg, backend, strategy.needs_contrib)
         meta["means2d"].retain_grad()
         target = torch.from_numpy(v.rgb)[None]
         teacher = None if v.depth is None else torch.from_numpy(v.depth)
@@ -158,7 +159,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
             with atomic_write(ckpt) as tmp:
                 torch.save({"iteration": it + 1, "config": cfg.digest(), "history": history, "optimizer": opt.state_dict(),
-                            "strategy": (strategy.grad_sum, strategy.count),
+                            "strategy": strategy.state_dict(),
                             "model": {n: p.detach() for n, p in model.named_parameters()}}, tmp)
     seconds["train"] = time.perf_counter() - t
     t = time.perf_counter()

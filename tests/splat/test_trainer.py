@@ -95,3 +95,89 @@ def test_strategy_clones_splits_prunes_and_keeps_adam_aligned():
         assert p is getattr(model, group["name"]) and opt.state[p]["exp_avg"].shape == p.shape
     edit_parameters(model, opt, torch.ones(len(model), dtype=torch.bool))
     assert len(model) == 9
+
+
+def _stack_scene():
+    """Gaussians along the camera's optical axis: a large opaque wall at 3 m, a tiny opaque detail in front of
+    it at 2.5 m, and an internal Gaussian hidden 0.2 m behind the wall."""
+    from panorecon.geometry import PointCloud
+
+    xyz = np.array([[3.0, 0, 0], [2.5, 0.3, 0.2], [3.2, 0, 0]])
+    model = GaussianModel.from_point_cloud(PointCloud(xyz, np.full((3, 3), 0.5)), sh_degree=0)
+    with torch.no_grad():
+        model.log_scales[:] = torch.log(torch.tensor([[0.01, 2.0, 2.0], [0.004, 0.004, 0.004], [0.01, 0.3, 0.3]]))
+        model.logit_opacities[:] = 5.0
+        model.quats[:] = torch.tensor([1.0, 0, 0, 0])
+    return model
+
+
+def _observe_views(strategy, model, n_views=6):
+    from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+    from panorecon.splat.rasterize import rasterize
+
+    K = torch.tensor(intrinsics_from_fov(64, 64, 60.0), dtype=torch.float32)[None]
+    for k in range(n_views):
+        eye = [0.0, 0.05 * k, 0.0]
+        V = torch.tensor(look_at_viewmat(eye, [3.0, 0.05 * k, 0.0]), dtype=torch.float32)[None]
+        img, alpha, depth, meta = rasterize(model.means, model.quats, model.scales(), model.opacities(),
+                                            model.sh()[:, 0] * 0 + 0.5, V, K, 64, 64, return_contrib=True)
+        meta["means2d"].retain_grad()
+        img.sum().backward()
+        strategy.observe(model, meta, 64, 64)
+
+
+def test_adaptive_strategy_prunes_hidden_gaussians_and_protects_surface_detail():
+    from panorecon.splat.strategy import AdaptiveStrategy
+
+    model = _stack_scene()
+    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": 0.0, "name": n}
+                            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
+    s = AdaptiveStrategy(refine_start=0, refine_stop=100, refine_every=10, grad_threshold=1e9, threshold_start=10.0,
+                         threshold_end=20.0, relax_fraction=0.5)
+    _observe_views(s, model)
+    score = s.top_contrib.mean(1)
+    # the wall contributes thousands of pixels; the detail a few; the hidden one only what leaks through the wall
+    assert score[0] > 1000 and score[1] < 5.0 and score[2] < 10.0
+    assert s.trans_max[1] > 0.9 and s.trans_max[2] < 0.2  # < surface_transmittance 0.5
+    assert s.threshold(40) == 0.0, "relaxation stage: no contribution pruning"
+    assert 10.0 <= s.threshold(60) < s.threshold(150) <= 20.0
+    out = s.step(model, opt, 150, extent=1.0)
+    assert out["pruned"] == 1 and len(model) == 2
+    # the internal Gaussian went; the wall and the surface detail (small footprint, high transmittance) stay
+    np.testing.assert_allclose(model.means.detach().numpy()[:, 0], [3.0, 2.5], atol=1e-6)
+
+
+def test_adaptive_strategy_in_the_relaxation_stage_prunes_nothing():
+    from panorecon.splat.strategy import AdaptiveStrategy
+
+    model = _stack_scene()
+    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": 0.0, "name": n}
+                            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
+    s = AdaptiveStrategy(refine_start=0, refine_stop=100, refine_every=10, grad_threshold=1e9, relax_fraction=0.5)
+    _observe_views(s, model)
+    assert s.step(model, opt, 20, extent=1.0)["pruned"] == 0 and len(model) == 3
+
+
+def test_adaptive_training_resumes_exactly(setup, tmp_path, monkeypatch):
+    scene, pc, depth_fn = setup
+    c = cfg(strategy="adaptive")
+    full = train(scene, pc, c, tmp_path / "full", depth_fn, progress=False)
+    assert full["strategy"] == "adaptive"
+    real = trainer_mod.total_loss
+    calls = {"n": 0}
+
+    def interrupt(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 45:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(trainer_mod, "total_loss", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, pc, c, tmp_path / "resumed", depth_fn, progress=False)
+    monkeypatch.setattr(trainer_mod, "total_loss", real)
+    train(scene, pc, c, tmp_path / "resumed", depth_fn, progress=False)
+    a, b = load_ply(tmp_path / "full" / "point_cloud.ply"), load_ply(tmp_path / "resumed" / "point_cloud.ply")
+    assert len(a) == len(b)
+    for x, y in zip(a.parameters(), b.parameters()):
+        torch.testing.assert_close(x, y, atol=1e-6, rtol=1e-5)

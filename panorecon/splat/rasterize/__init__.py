@@ -17,15 +17,13 @@ log = logging.getLogger("panorecon.splat")
 _announced: set[str] = set()
 
 
-def resolve_backend(backend: str, return_contrib: bool = False) -> str:
-    """'auto' -> 'cpu' when the C++ kernel is available (and no contributions are asked), else 'torch'."""
+def resolve_backend(backend: str) -> str:
+    """'auto' -> 'cpu' when the C++ kernel is available, else 'torch'."""
     if backend not in BACKENDS:
         raise ValueError(f"backend={backend!r}: expected one of {BACKENDS}")
-    if backend == "cpu" and return_contrib:
-        raise ValueError("return_contrib is computed by the torch backend only; use backend='torch' or 'auto'")
     if backend == "cpu" and not cpu_backend.available():
         raise RuntimeError("backend='cpu' asked for, but the C++ rasterizer could not be built (see the log)")
-    chosen = backend if backend != "auto" else ("cpu" if not return_contrib and cpu_backend.available() else "torch")
+    chosen = backend if backend != "auto" else ("cpu" if cpu_backend.available() else "torch")
     if chosen not in _announced:
         _announced.add(chosen)
         log.info("rasterizer backend: %s%s", chosen, " (auto)" if backend == "auto" else "")
@@ -43,7 +41,7 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
     radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
     """
-    backend = resolve_backend(backend, return_contrib)
+    backend = resolve_backend(backend)
     means2d, conics, depths, radii = project_gaussians(means, quats, scales, viewmats, Ks, width, height,
                                                        near_plane, far_plane, eps2d)
     if sh_degree is None:
@@ -56,10 +54,10 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
         dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         cols = sh_to_rgb(sh_degree, colors, dirs)
     if backend == "cpu":
-        image, alpha, depth = cpu_backend.composite(means2d, conics, cols, opacities, depths, radii, width, height, tile_size)
+        image, alpha, depth, contrib = cpu_backend.composite(means2d, conics, cols, opacities, depths, radii, width,
+                                                             height, tile_size, return_contrib)
         if backgrounds is not None:
             image = image + (1 - alpha) * backgrounds[:, None, None, :].to(image.dtype)
-        contrib = None
     else:
         image, alpha, depth, contrib = rasterize_tiles(means2d, conics, cols, opacities, depths, radii, width, height,
                                                        tile_size, backgrounds, return_contrib)

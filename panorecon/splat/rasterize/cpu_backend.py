@@ -46,27 +46,33 @@ def available() -> bool:
 
 class _Composite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, colors, opacities, depths, radii, width, height, tile):
+    def forward(ctx, means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib):
         ext = load()
-        image, alpha, depth, T_final, last, offsets, ids = ext.forward(means2d, conics, colors, opacities, depths,
-                                                                       radii, width, height, tile)
+        image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max = ext.forward(
+            means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib)
         ctx.save_for_backward(means2d, conics, colors, opacities, depths, T_final, last, offsets, ids)
         ctx.size = (width, height, tile)
-        return image, alpha, depth
+        ctx.mark_non_differentiable(w_sum, w_max, t_max)
+        return image, alpha, depth, w_sum, w_max, t_max
 
     @staticmethod
-    def backward(ctx, g_image, g_alpha, g_depth):
+    def backward(ctx, g_image, g_alpha, g_depth, *_contrib_grads):
         means2d, conics, colors, opacities, depths, T_final, last, offsets, ids = ctx.saved_tensors
         width, height, tile = ctx.size
         g = [t.contiguous() if t is not None else torch.zeros_like(ref) for t, ref in
              ((g_image, T_final[..., None].expand(-1, -1, -1, 3)), (g_alpha, T_final[..., None]), (g_depth, T_final[..., None]))]
         gm, gc, gcol, gop, gz = load().backward(means2d, conics, colors, opacities, depths, T_final, last, offsets, ids,
                                                 g[0], g[1], g[2], width, height, tile)
-        return gm, gc, gcol, gop, gz, None, None, None, None
+        return gm, gc, gcol, gop, gz, None, None, None, None, None
 
 
-def composite(means2d, conics, colors, opacities, depths, radii, width: int, height: int, tile: int = 16):
-    """Same contract as ``torch_backend.rasterize_tiles`` without backgrounds and contributions; float32."""
+def composite(means2d, conics, colors, opacities, depths, radii, width: int, height: int, tile: int = 16,
+              return_contrib: bool = False):
+    """Same contract as ``torch_backend.rasterize_tiles`` without backgrounds; float32. -> (image, alpha,
+    depth, contrib dict of weight_sum / weight_max / trans_max [C,N] or None)."""
     f = lambda t: t.float().contiguous()  # noqa: E731
-    return _Composite.apply(f(means2d), f(conics), f(colors), f(opacities), f(depths),
-                            radii.to(torch.int32).contiguous(), width, height, tile)
+    image, alpha, depth, w_sum, w_max, t_max = _Composite.apply(
+        f(means2d), f(conics), f(colors), f(opacities), f(depths), radii.to(torch.int32).contiguous(), width, height,
+        tile, return_contrib)
+    contrib = {"weight_sum": w_sum, "weight_max": w_max, "trans_max": t_max} if return_contrib else None
+    return image, alpha, depth, contrib

@@ -97,10 +97,12 @@ inline bool alpha_at(const float* con, float dx, float dy, float o, float& alpha
 }  // namespace
 
 // -> image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1], T_final [C,H,W], last [C,H,W] (int32: how many
-// entries of the pixel's 4x4-block list were composited), offsets, ids
+// entries of the pixel's 4x4-block list were composited), offsets, ids, and with want_contrib the per-Gaussian
+// weight_sum, weight_max (sum / max over pixels of alpha*T) and trans_max (max T in front of it where it was
+// composited) [C,N]; else three empty tensors. Contributions are reduced from per-thread buffers.
 std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
                                    torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii, int64_t W,
-                                   int64_t H, int64_t tile) {
+                                   int64_t H, int64_t tile, bool want_contrib) {
   const int64_t C = means2d.size(0), N = means2d.size(1);
   const float* m2d = means2d.data_ptr<float>();
   const float* con = conics.data_ptr<float>();
@@ -116,7 +118,11 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   float *img = image.data_ptr<float>(), *al = alpha.data_ptr<float>(), *dep = depth.data_ptr<float>(), *Tf = T_final.data_ptr<float>();
   int32_t* ls = last.data_ptr<int32_t>();
   const int64_t tx_n = (W + tile - 1) / tile, ty_n = (H + tile - 1) / tile, tiles = tx_n * ty_n;
+  const int64_t n_threads = want_contrib ? at::get_num_threads() : 0;
+  // per thread: [weight_sum | weight_max | trans_max] x C*N
+  std::vector<float> contrib_buf(n_threads * 3 * C * N, 0.f);
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
+    float* cb = want_contrib ? contrib_buf.data() + at::get_thread_num() * 3 * C * N : nullptr;
     for (int64_t t = b; t < e; ++t) {
       const int64_t c = t / tiles, ty = (t % tiles) / tx_n, tx = (t % tiles) % tx_n;
       const int64_t s = bins.offsets[t], n_g = bins.offsets[t + 1] - s;
@@ -141,6 +147,11 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
                 const float nextT = T * (1.f - a);
                 if (nextT <= T_MIN) break;
                 const float w = a * T;
+                if (cb) {
+                  cb[cn] += w;
+                  cb[C * N + cn] = std::max(cb[C * N + cn], w);
+                  cb[2 * C * N + cn] = std::max(cb[2 * C * N + cn], T);
+                }
                 r += w * col[cn * 3];
                 g += w * col[cn * 3 + 1];
                 bl += w * col[cn * 3 + 2];
@@ -157,7 +168,18 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   });
   auto offsets = torch::from_blob(bins.offsets.data(), {(int64_t)bins.offsets.size()}, torch::kInt64).clone();
   auto ids = torch::from_blob(bins.ids.data(), {(int64_t)bins.ids.size()}, torch::kInt32).clone();
-  return {image, alpha, depth, T_final, last, offsets, ids};
+  auto w_sum = torch::zeros({want_contrib ? C : 0, N}, f), w_max = torch::zeros({want_contrib ? C : 0, N}, f),
+       t_max = torch::zeros({want_contrib ? C : 0, N}, f);
+  float *ws = w_sum.data_ptr<float>(), *wm = w_max.data_ptr<float>(), *tm = t_max.data_ptr<float>();
+  for (int64_t th = 0; th < n_threads; ++th) {
+    const float* cb = contrib_buf.data() + th * 3 * C * N;
+    for (int64_t k = 0; k < C * N; ++k) {
+      ws[k] += cb[k];
+      wm[k] = std::max(wm[k], cb[C * N + k]);
+      tm[k] = std::max(tm[k], cb[2 * C * N + k]);
+    }
+  }
+  return {image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max};
 }
 
 // Gradients w.r.t. means2d [C,N,2], conics [C,N,3], colors [C,N,3], opacities [N], depths [C,N].
