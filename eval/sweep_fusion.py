@@ -4,7 +4,7 @@ and solver settings (pyramid depth, CG tolerance), on the synthetic scenes.
     python eval/sweep_fusion.py --out out/sweep [--scenes bedroom,beach] [--width 512] [--teacher sim:relative]
 
 Writes sweep.csv (one row per scene x configuration; rows already there are skipped, so an interrupted
-sweep resumes) and pareto.png (AbsRel against seconds, per scene and averaged, Pareto front marked).
+sweep resumes) and pareto.png (AbsRel against seconds: single runs and per-configuration means, Pareto front marked).
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import csv
 from pathlib import Path
 
 from panorecon.fusion import FusionConfig
+from panorecon.evaluation.report import pareto_plot
 from panorecon.io import atomic_write
 from panorecon.scenes import list_scenes, load_scene
 from panorecon.sources import run_source
@@ -31,39 +32,15 @@ def configurations():
         yield f"fibonacci-20-tol{tol:g}", "fibonacci", 20, None, tol
 
 
-def pareto(points):
-    """Indices of points not dominated in (seconds, abs_rel), both lower-is-better."""
-    return [i for i, (s, e) in enumerate(points) if not any(s2 <= s and e2 <= e and (s2, e2) != (s, e) for s2, e2 in points)]
-
-
 def plot(rows, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """AbsRel against seconds: per-config means over scenes (Pareto front marked), single runs faint."""
     import pandas as pd
 
     df = pd.DataFrame(rows)
     df[["abs_rel", "seconds"]] = df[["abs_rel", "seconds"]].astype(float)
-    mean = df.groupby("config")[["abs_rel", "seconds"]].mean().reset_index()
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
-    for scene, g in df.groupby("scene"):
-        axes[0].scatter(g["seconds"], g["abs_rel"], s=14, label=scene)
-    axes[0].set(xlabel="seconds (source total)", ylabel="AbsRel (median-aligned)", title="per scene", yscale="log")
-    axes[0].legend(fontsize=7)
-    pts = list(zip(mean["seconds"], mean["abs_rel"]))
-    front = pareto(pts)
-    axes[1].scatter(mean["seconds"], mean["abs_rel"], c=["C3" if i in front else "C0" for i in range(len(pts))])
-    for (s, e), name in zip(pts, mean["config"]):
-        axes[1].annotate(name, (s, e), fontsize=7, xytext=(3, 3), textcoords="offset points")
-    fp = sorted(pts[i] for i in front)
-    axes[1].plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1, label="Pareto front")
-    axes[1].set(xlabel="seconds (mean over scenes)", ylabel="AbsRel (mean over scenes)", title="averaged", yscale="log")
-    axes[1].legend()
-    fig.tight_layout()
-    with atomic_write(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    mean = df.groupby("config")[["seconds", "abs_rel"]].mean()
+    pareto_plot(mean, df, "seconds", "abs_rel", "AbsRel (median-aligned, mean over scenes)", path,
+                title="fusion: error against run time")
 
 
 def main(argv=None):

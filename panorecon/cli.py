@@ -96,7 +96,8 @@ def cmd_demo(args) -> int:
     cmd_inspect(argparse.Namespace(cloud=str(out / "gt_cloud.ply"), screenshot=str(out / "gt_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
     cmd_train(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, width=args.width,
-                                 iters=args.iters, res=64, labels=120, backend=None, seed=None, no_progress=False,
+                                 iters=args.iters, res=64, labels=120, backend=None, strategy=None, seed=None,
+                                 no_progress=False,
                                  out=str(out)))
     cmd_inspect(argparse.Namespace(cloud=str(out / "fibonacci_cloud.ply"), screenshot=str(out / "fibonacci_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
@@ -154,28 +155,44 @@ def cmd_points(args) -> int:
 def cmd_train(args) -> int:
     import dataclasses
 
+    from .pipeline import teacher_depth_fn
     from .scenes import load_scene
     from .splat.trainer import TrainConfig, train
-    from .teachers import get_teacher
 
     scene = load_scene(args.scene, args.width)
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
-    teacher = get_teacher(args.teacher) if args.teacher else None
-
-    def depth_fn(cameras):  # z-like depth for the Pearson term (scale and shift do not matter to it)
-        with np.errstate(divide="ignore"):
-            return [v.depth if v.kind != "disparity" else 1.0 / v.depth for v in teacher.predict_views(scene, cameras)]
-
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
-    m = train(scene, pc, cfg, args.out, depth_fn if teacher else None, progress=not args.no_progress)
+    m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress)
     held = m["held-out"]
     held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
           f"{m['pseudo-label']['ssim']:.3f}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
           f"{m['seconds']['total']:.1f} s; peak {m['peak_rss_mb']:.0f} MB -> {args.out}")
     return 0
+
+
+# ---------------------------------------------------------------- evaluation
+def cmd_ablate(args) -> int:
+    from .evaluation.ablate import run_suite
+    from .evaluation.report import average_table
+    from .evaluation.suite import load_suite
+
+    suite = load_suite(args.suite)
+    print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
+    frame = run_suite(suite, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
+                      cache_dir=args.cache, progress=not args.no_progress)
+    cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
+    print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
+    print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from .evaluation.bench import run_bench
+
+    return run_bench(args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline)
 
 
 # ---------------------------------------------------------------- parser
@@ -233,10 +250,31 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--res", type=int, default=None, help="label view size in pixels (default 128)")
     tr.add_argument("--labels", type=int, default=None, help="pseudo-label views (default 240)")
     tr.add_argument("--backend", choices=["auto", "torch", "cpu"], default=None)
+    tr.add_argument("--strategy", choices=["default", "adaptive"], default=None,
+                    help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)")
     tr.add_argument("--seed", type=int, default=None)
     tr.add_argument("--no-progress", action="store_true")
     tr.add_argument("--out", required=True, help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
     tr.set_defaults(fn=cmd_train)
+
+    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots")
+    ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
+    ab.add_argument("--out", required=True, help="output folder (its cache/ makes a rerun or a resumed run cheap)")
+    ab.add_argument("--jobs", type=int, default=1, help="parallel worker processes")
+    ab.add_argument("--engine", choices=["local", "dask"], default="local",
+                    help="local process pool, or Dask (a LocalCluster, or --scheduler ADDRESS)")
+    ab.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (with --engine dask)")
+    ab.add_argument("--cache", default=None, help="stage cache folder shared between suites (default OUT/cache)")
+    ab.add_argument("--no-progress", action="store_true")
+    ab.set_defaults(fn=cmd_ablate)
+
+    be = sub.add_parser("bench", help="the benchmark CI job: tiny suite + micro-benchmarks against a baseline")
+    be.add_argument("--quick", action="store_true", help="tiny sizes (CI)")
+    be.add_argument("--suite", default="eval/suites/bench.toml")
+    be.add_argument("--baseline", default="benchmarks/baseline.json")
+    be.add_argument("--out", default=None, help="also write the result JSON here")
+    be.add_argument("--update-baseline", action="store_true", help="store this run as the baseline")
+    be.set_defaults(fn=cmd_bench)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")

@@ -12,9 +12,10 @@ the pixel's area weight::
 The gradient and Laplacian terms are invariant to each view's scale (a log-scale is an additive
 constant), so per-view scale only enters the data term. Summing over views, each pair / pixel carries one
 aggregated weight and target, so the system is H*W x H*W whatever the number of views. Its normal matrix
-is sparse SPD (13-point stencil), solved coarse to fine: a direct solve at the coarsest level, then
-conjugate gradients preconditioned by smoothed-aggregation algebraic multigrid (pyamg), warm-started from
-the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent),
+is sparse SPD (13-point stencil), solved coarse to fine: a direct solve at the coarsest level (assembled
+sparse matrix), then Jacobi-preconditioned conjugate gradients on the matrix-free stencil operator
+(``operators.StencilNormalOperator``: array shifts, no assembly; optionally pyamg smoothed-aggregation AMG on
+the assembled matrix), warm-started from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent),
 its gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
 Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``).
 """
@@ -32,7 +33,8 @@ import scipy.sparse.linalg as spla
 
 from ..geometry import ViewDepth, erp_directions, sample_erp
 from .affine import align_affine_views
-from .operators import horizontal_pairs, laplacian_centres, stacked_operator, vertical_pairs
+from .operators import (StencilNormalOperator, laplacian_centres, stacked_operator, transpose_apply,
+                        vertical_pairs)
 from .warp import ErpObservation, warp_to_erp
 
 
@@ -130,12 +132,12 @@ def _row_area(height: int, width: int, on: bool) -> np.ndarray:
     return np.repeat(a, width)
 
 
-def _assemble(level: _Level, cfg: FusionConfig):
-    """Normal matrix A and the scale-independent part of b, plus per-view data weights."""
+def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
+    """Normal matrix A and the scale-independent part of b, plus per-view data weights. A is a scipy sparse
+    matrix when ``sparse`` (direct solves, AMG), else the matrix-free ``StencilNormalOperator`` (the same A)."""
     H, W = level.height, level.width
     N = H * W
     area = _row_area(H, W, cfg.area_weight)
-    hp, hq = horizontal_pairs(H, W)
     vp, vq = vertical_pairs(H, W)
     lc = laplacian_centres(H, W)
     wgx, tgx = np.zeros(N), np.zeros(N)
@@ -170,15 +172,16 @@ def _assemble(level: _Level, cfg: FusionConfig):
     for o, w in zip(level.obs, data_w):
         diag += np.bincount(o.index, w, minlength=N)
     diag[~level.seen] = 1.0  # unseen pixels carry no equation: decouple them (x = 0 there, reported as NaN)
+    gx, gy, gl = cfg.w_grad * wgx * area, cfg.w_grad * wgy * area_v, cfg.w_lap * wl * area[lc]
+    b0 = transpose_apply(H, W, cfg.w_grad * tgx * area, cfg.w_grad * tgy * area_v, cfg.w_lap * tl * area[lc]).ravel()
+    if not sparse:
+        return StencilNormalOperator(H, W, gx, gy, gl, diag), b0, data_w
     # A = (R B)^T (R B) for the stacked operator B = [Dx; Dy; Lap; I] and row weights R^2 = (gradient, Laplacian,
     # data) weights: one sparse product on a cached structure
     B, row_of_entry = stacked_operator(H, W)
-    w_rows = np.concatenate([cfg.w_grad * wgx * area, cfg.w_grad * wgy * area_v, cfg.w_lap * wl * area[lc], diag])
+    w_rows = np.concatenate([gx, gy, gl, diag])
     Bw = sp.csr_matrix((B.data * np.sqrt(w_rows)[row_of_entry], B.indices, B.indptr), shape=B.shape)
     A = (Bw.T @ Bw).tocsr()
-    # b0 = B^T (weighted targets) for the gradient and Laplacian rows (the data rows come from _data_rhs)
-    targets = np.concatenate([cfg.w_grad * tgx * area, cfg.w_grad * tgy * area_v, cfg.w_lap * tl * area[lc], np.zeros(N)])
-    b0 = np.bincount(B.indices, B.data * targets[row_of_entry], minlength=N)
     return A, b0, data_w
 
 
@@ -293,7 +296,8 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
     for li, h in enumerate(pyramid_heights(height, cfg.levels)):
         tl = time.perf_counter()
         level = _observe(views, dists, h)
-        A, b0, data_w = _assemble(level, cfg)
+        direct = li == 0 and h * 2 * h <= 40_000
+        A, b0, data_w = _assemble(level, cfg, sparse=direct or cfg.preconditioner == "amg")
         if s is None:
             s = _initial_scales(level, metric)
         if x is None:
@@ -302,7 +306,6 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         else:
             x = _upsample(x, prev_seen, prev_h, h)
         its_total, resid = 0, float("nan")
-        direct = li == 0 and h * 2 * h <= 40_000
         M = None if direct else _preconditioner(A, cfg)
         finest = h == height
         tol = cfg.tol if finest else max(cfg.tol, cfg.coarse_tol)

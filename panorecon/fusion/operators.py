@@ -5,6 +5,7 @@ import functools
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 
 def horizontal_pairs(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -69,3 +70,58 @@ def stacked_operator(height: int, width: int):
     B = sp.csr_matrix((data, indices, indptr), shape=(len(lengths), n))
     row_of_entry = np.repeat(np.arange(len(lengths), dtype=np.int32), lengths)
     return B, row_of_entry
+
+
+class StencilNormalOperator(spla.LinearOperator):
+    """A = Dx^T diag(wx) Dx + Dy^T diag(wy) Dy + Lap^T diag(wl) Lap + diag(d), applied on the H x W grid with
+    array shifts instead of a stored matrix (the same operator as ``(R B)^T (R B)`` for ``stacked_operator``).
+
+    wx [H*W]: weight of the pair (p, right of p, wrapping); wy [(H-1)*W]: pair (p, below p); wl [(H-2)*W]:
+    Laplacian row centred on interior pixel p (rows 1..H-2); d [H*W]: diagonal (data) weights. float64.
+    Needs width >= 3 (narrower, a pixel's left and right neighbours coincide).
+    """
+
+    def __init__(self, height: int, width: int, wx, wy, wl, d):
+        if width < 3 or height < 2:
+            raise ValueError(f"StencilNormalOperator on a {height} x {width} grid: expected height >= 2, width >= 3")
+        super().__init__(np.float64, (height * width, height * width))
+        self.height, self.width = height, width
+        self.wx = np.asarray(wx, np.float64).reshape(height, width)
+        self.wy = np.asarray(wy, np.float64).reshape(height - 1, width)
+        self.wl = np.asarray(wl, np.float64).reshape(max(height - 2, 0), width)
+        self.d = np.asarray(d, np.float64).reshape(height, width)
+
+    def _matvec(self, x):
+        X = np.asarray(x, np.float64).reshape(self.height, self.width)
+        right = np.roll(X, -1, axis=1)
+        tx = self.wx * (right - X)
+        ty = self.wy * (X[1:] - X[:-1])
+        tl = self.wl * (right[1:-1] + np.roll(X, 1, axis=1)[1:-1] + X[:-2] + X[2:] - 4 * X[1:-1])
+        return transpose_apply(self.height, self.width, tx, ty, tl).ravel() + (self.d * X).ravel()
+
+    def _rmatvec(self, x):
+        return self._matvec(x)  # symmetric
+
+    def diagonal(self) -> np.ndarray:
+        diag = self.wx + np.roll(self.wx, 1, axis=1) + self.d
+        diag[:-1] += self.wy
+        diag[1:] += self.wy
+        diag[1:-1] += 16 * self.wl + np.roll(self.wl, 1, axis=1) + np.roll(self.wl, -1, axis=1)
+        diag[:-2] += self.wl
+        diag[2:] += self.wl
+        return diag.ravel()
+
+
+def transpose_apply(height: int, width: int, tx, ty, tl) -> np.ndarray:
+    """Dx^T tx + Dy^T ty + Lap^T tl as an [H, W] array, for per-row values tx [H, W] (horizontal pairs),
+    ty [H-1, W] (vertical pairs) and tl [H-2, W] (Laplacian rows centred on rows 1..H-2)."""
+    tx = np.asarray(tx, np.float64).reshape(height, width)
+    ty = np.asarray(ty, np.float64).reshape(height - 1, width)
+    tl = np.asarray(tl, np.float64).reshape(max(height - 2, 0), width)
+    out = np.roll(tx, 1, axis=1) - tx  # +t at q = right of p, -t at p
+    out[1:] += ty
+    out[:-1] -= ty
+    out[1:-1] += np.roll(tl, 1, axis=1) + np.roll(tl, -1, axis=1) - 4 * tl
+    out[:-2] += tl
+    out[2:] += tl
+    return out

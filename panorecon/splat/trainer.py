@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from ..io import atomic_write, write_image, write_json
+from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .labels import LabelView, make_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
 from .model import GaussianModel
@@ -62,18 +63,6 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float("inf") if mse == 0 else 10 * math.log10(1.0 / mse)
 
 
-def lpips_status() -> str:
-    """LPIPS needs the AlexNet backbone weights in the local torch cache; none can be downloaded here."""
-    try:
-        import lpips  # noqa: F401
-    except ImportError:
-        return "n/a: lpips package not installed (pip install 'panorecon[metrics]')"
-    hub = Path(torch.hub.get_dir()) / "checkpoints"
-    if not any(hub.glob("alexnet-*.pth")):
-        return "n/a: no LPIPS weights"
-    return "available"
-
-
 def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_degree: int, backend: str,
             return_contrib: bool = False):
     V = torch.tensor(np.stack([v.camera.viewmat for v in views]), dtype=torch.float32)
@@ -85,14 +74,18 @@ def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_d
 def _evaluate(model, views, cfg, backend) -> dict:
     if not views:
         return {}
-    ps, ss = [], []
+    net = lpips_or_reason()
+    ps, ss, lp = [], [], []
     with torch.no_grad():
         for v in views:
             img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
             t = torch.from_numpy(v.rgb)
             ps.append(psnr(img, t))
             ss.append(float(ssim(img, t)))
-    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "lpips": lpips_status(), "views": len(views)}
+            if not isinstance(net, str):
+                lp.append(lpips_distance(net, img, t))
+    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "lpips": float(np.mean(lp)) if lp else net,
+            "views": len(views)}
 
 
 def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True) -> dict:

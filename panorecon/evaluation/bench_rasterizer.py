@@ -1,7 +1,7 @@
 """Rasterizer benchmark: forward + backward time of the ``torch`` reference and the ``cpu`` kernel, measured in
 the same run, at 128², 256², 512² with 10k and 100k Gaussians.
 
-    python benchmarks/bench_rasterizer.py [--quick] [--repeats N] [--out result.json]
+    python -m panorecon.evaluation.bench_rasterizer [--quick] [--repeats N] [--out result.json]
 
 Scene: Gaussians uniformly in a box 2-8 m in front of one 60° camera, isotropic-ish scales 1-4 cm (a few
 pixels each at 256²), opacities 0.1-0.9, RGB colours. Median seconds over repeats (the torch reference is
@@ -15,12 +15,10 @@ import resource
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import emit, environment  # noqa: E402
+from .environment import emit, environment
 
 
 def scene(n: int, seed: int = 0):
@@ -47,6 +45,23 @@ def fwd_bwd(backend: str, size: int, n: int) -> float:
     return time.perf_counter() - t
 
 
+def max_difference(size: int, n: int) -> dict:
+    """Largest |cpu - torch| on the image and on the means gradient (the correctness check of the benchmark)."""
+    from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+    from panorecon.splat.rasterize import rasterize
+
+    K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
+    V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
+    out = {}
+    for backend in ("cpu", "torch"):
+        leaves = [t.clone().requires_grad_(True) for t in scene(n)]
+        img, *_ = rasterize(*leaves, V, K, size, size, backend=backend)
+        img.sum().backward()
+        out[backend] = (img.detach(), leaves[0].grad)
+    return {"image": float((out["cpu"][0] - out["torch"][0]).abs().max()),
+            "grad_means": float((out["cpu"][1] - out["torch"][1]).abs().max())}
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
@@ -66,6 +81,7 @@ def main(argv=None) -> dict:
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
     return emit({"benchmark": "rasterizer forward+backward", **environment(), "threads": torch.get_num_threads(),
+                 "max_abs_difference": max_difference(*grid[0]),
                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "results": rows}, args.out)
 
 

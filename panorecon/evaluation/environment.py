@@ -13,8 +13,11 @@ from pathlib import Path
 
 def environment() -> dict:
     import numpy
+    import open3d
     import scipy
     import torch
+
+    from .. import __version__
 
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
@@ -25,7 +28,7 @@ def environment() -> dict:
         commit, dirty = "unknown", False
     return {"machine": {"platform": platform.platform(), "processor": platform.machine(), "cpus": os.cpu_count()},
             "versions": {"python": sys.version.split()[0], "numpy": numpy.__version__, "scipy": scipy.__version__,
-                         "torch": torch.__version__},
+                         "torch": torch.__version__, "open3d": open3d.__version__, "panorecon": __version__},
             "commit": commit + ("+dirty" if dirty else "")}
 
 

@@ -2,7 +2,7 @@
 (12 icosahedron-vertex views at 90 degrees), measured in the same run, on a box room whose true ray
 distance is known, with per-view random scales in [0.7, 1.4] and 2 % multiplicative noise.
 
-    python benchmarks/bench_fusion.py [--quick] [--repeats N] [--out result.json]
+    python -m panorecon.evaluation.bench_fusion [--quick] [--repeats N] [--out result.json]
 
 Prints JSON: machine, versions, commit, and per size the median seconds, AbsRel and peak RSS of each
 method (each repeat in a fresh process, so the peak is that run's own; it includes the ~0.3 GB of imports)
@@ -15,12 +15,10 @@ import json
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import emit, environment, in_fresh_process  # noqa: E402
+from .environment import emit, environment, in_fresh_process
 
 
 def box_distance(d):

@@ -6,11 +6,6 @@ sweep = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(sweep)
 
 
-def test_pareto_front():
-    pts = [(1.0, 0.5), (2.0, 0.1), (3.0, 0.2), (0.5, 0.9), (2.0, 0.5)]
-    assert sorted(sweep.pareto(pts)) == [0, 1, 3]
-
-
 def test_configurations_cover_the_issue():
     names = [c[0] for c in sweep.configurations()]
     assert {f"fibonacci-{n}" for n in (12, 15, 20, 25, 40)} <= set(names)

@@ -1,0 +1,148 @@
+"""``panorecon ablate``: run a suite's grid through the cached pipeline and write results.csv / results.md / plots.
+
+The grid is run as a two-level DAG: every distinct point-cloud stage first, then every training stage (which
+reads its cloud from the cache), so a stage shared by several rows runs once, and a stage finished in an earlier
+run (same settings, same code) is not run again. Each stage runs in a fresh spawned process (its peak memory
+is its own) on a local process pool of ``jobs`` workers, or on a Dask cluster (``engine="dask"``: a
+``LocalCluster`` of ``jobs`` workers, or an existing scheduler by address); there worker processes are reused,
+so a stage's peak memory is its worker's peak so far.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+from pathlib import Path
+
+import pandas as pd
+
+from ..io import atomic_write
+from ..pipeline import Row, StageCache, run_points, run_train
+from .environment import environment
+from .suite import Suite
+
+ENGINES = ("local", "dask")
+
+
+def _init_worker(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def _points_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
+    row, points_key, _ = task
+    return run_points(StageCache(cache_root), row, points_key)
+
+
+def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
+    row, points_key, train_key = task
+    return run_train(StageCache(cache_root), row, key=train_key, points_key=points_key)
+
+
+def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str,
+               progress: bool) -> None:
+    from tqdm import tqdm
+
+    if not tasks:
+        return
+    bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
+    if engine == "dask":
+        from dask.distributed import Client, LocalCluster, as_completed as dask_completed
+
+        cluster = None if scheduler else LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
+                                                      dashboard_address=None)
+        with Client(scheduler or cluster) as client:
+            futures = client.map(fn, [cache_root] * len(tasks), tasks, pure=False)
+            for f in dask_completed(futures):
+                f.result()
+                bar.update()
+        if cluster is not None:
+            cluster.close()
+    else:
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), initializer=_init_worker,
+                                 initargs=(threads,), max_tasks_per_child=1) as pool:
+            for f in as_completed([pool.submit(fn, cache_root, r) for r in tasks]):
+                f.result()
+                bar.update()
+    bar.close()
+
+
+def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", scheduler: str | None = None,
+              cache_dir=None, progress: bool = True) -> pd.DataFrame:
+    """Run (or read from the cache) every row of ``suite``; write DIR/results.csv, results.md and plots."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine={engine!r}: expected one of {ENGINES}")
+    if jobs < 1:
+        raise ValueError(f"jobs={jobs}: expected at least 1")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cache = StageCache(cache_dir or out / "cache")
+    t0 = time.perf_counter()
+    # keys fixed once, here: workers use them, so the run stays consistent even if the code changes meanwhile
+    tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
+    points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
+    _run_tasks(_points_task, list(points_todo.values()), str(cache.root), jobs, engine, scheduler, "points", progress)
+    train_todo = {t[2]: t for t in tasks if t[2] is not None and cache.done("train", t[2]) is None}
+    _run_tasks(_train_task, list(train_todo.values()), str(cache.root), jobs, engine, scheduler, "train", progress)
+    env = environment()
+    frame = pd.DataFrame([result_row(cache, *t, env, t[1] not in points_todo, t[2] is not None and t[2] not in train_todo)
+                          for t in tasks])
+    with atomic_write(out / "results.csv") as tmp:
+        frame.to_csv(tmp, index=False)
+    from .report import write_plots, write_results_md
+
+    write_plots(frame, suite, out)
+    write_results_md(frame, suite, out, wall_seconds=time.perf_counter() - t0)
+    return frame
+
+
+def _num(v):
+    """A float, or NaN for an 'n/a: ...' string (the reason is kept in its own column)."""
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
+
+
+def result_row(cache: StageCache, row: Row, points_key: str, train_key: str | None, env: dict, points_cached: bool,
+               train_cached: bool) -> dict:
+    """One results.csv row: the row's settings, every metric with its protocol, seconds per stage, peak memory,
+    versions, commit, and which stages came from the cache."""
+    pts = cache.done("points", points_key)
+    rep = pts["report"]
+    depth = rep.get("depth") if isinstance(rep.get("depth"), dict) else {}
+    points = rep.get("points", {})
+    rec = {"label": row.label, "scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,
+           "views": rep.get("views"), **row.extra,
+           "abs_rel": _num(depth.get("abs_rel")), "rmse": _num(depth.get("rmse")), "delta1": _num(depth.get("delta1")),
+           "teacher_view_abs_rel": _num(rep.get("teacher_per_view_abs_rel_median")),
+           "points": points.get("count"), "chamfer": _num(points.get("chamfer")),
+           "accuracy": _num(points.get("accuracy")), "completeness": _num(points.get("completeness")),
+           "sec_points": pts["seconds"], "peak_mb_points": pts["peak_rss_mb"]}
+    for stage, sec in rep["seconds"].items():
+        if stage != "total":
+            rec[f"sec_points_{stage}"] = sec
+    seconds_total, peak = pts["seconds"], pts["peak_rss_mb"]
+    if row.train is not None:
+        tr = cache.done("train", train_key)
+        m = tr["metrics"]
+        for proto, tag in (("pseudo-label", "pl"), ("held-out", "ho")):
+            block = m.get(proto)
+            block = block if isinstance(block, dict) else {}
+            for metric in ("psnr", "ssim", "lpips"):
+                rec[f"{metric}_{tag}"] = _num(block.get(metric))
+            if isinstance(block.get("lpips"), str):
+                rec[f"lpips_{tag}_note"] = block["lpips"]
+            if not block:
+                rec[f"psnr_{tag}_note"] = m.get(proto)
+        rec.update(gaussians=m["gaussians"], iters=m["iterations"], strategy=m["strategy"],
+                   labels=m["config"]["labels"], res=m["config"]["res"],
+                   sec_labels=m["seconds"]["labels"], sec_train=m["seconds"]["train"], sec_eval=m["seconds"]["eval"],
+                   peak_mb_train=tr["peak_rss_mb"], history=";".join(f"{h['iteration']}:{h['psnr']:.3f}" for h in m["history"]))
+        seconds_total += tr["seconds"]
+        peak = max(peak, tr["peak_rss_mb"])
+    rec.update(sec_total=seconds_total, peak_mb=peak, cached=",".join(
+        s for s, c in (("points", points_cached), ("train", train_cached)) if c) or "none",
+        commit=env["commit"], **{f"version_{k}": v for k, v in env["versions"].items()})
+    return rec

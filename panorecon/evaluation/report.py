@@ -1,0 +1,144 @@
+"""results.md tables shaped like the paper's, and the plots: error against run time (Pareto), PSNR against steps."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pandas as pd
+
+from ..io import atomic_write
+
+# (column, header, format) of the averaged table; a column absent from the frame (no training) is left out
+TABLE_COLUMNS = [
+    ("psnr_pl", "PSNR", "{:.2f}"), ("ssim_pl", "SSIM", "{:.3f}"), ("lpips_pl", "LPIPS", "{:.3f}"),
+    ("psnr_ho", "held-out PSNR", "{:.2f}"), ("ssim_ho", "held-out SSIM", "{:.3f}"),
+    ("abs_rel", "AbsRel", "{:.4f}"), ("chamfer", "Chamfer (m)", "{:.4f}"), ("accuracy", "Acc. (m)", "{:.4f}"),
+    ("completeness", "Comp. (m)", "{:.4f}"), ("points", "points", "{:,.0f}"), ("gaussians", "Gaussians", "{:,.0f}"),
+    ("sec_points", "points s", "{:.1f}"), ("sec_train", "train s", "{:.1f}"), ("sec_total", "total s", "{:.1f}"),
+    ("peak_mb", "peak MB", "{:.0f}"),
+]
+
+
+def pareto(points: list[tuple[float, float]]) -> list[int]:
+    """Indices of the points not dominated in (x, y), both lower-is-better."""
+    return [i for i, (s, e) in enumerate(points)
+            if not any(s2 <= s and e2 <= e and (s2, e2) != (s, e) for s2, e2 in points)]
+
+
+def _fmt(v, f: str) -> str:
+    return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f.format(v)
+
+
+def average_table(frame: pd.DataFrame) -> pd.DataFrame:
+    """Mean over scenes of every numeric table column, one row per label (in the suite's order)."""
+    cols = [c for c, *_ in TABLE_COLUMNS if c in frame]
+    order = list(dict.fromkeys(frame["label"]))
+    mean = frame.groupby("label", sort=False)[cols].mean(numeric_only=True).reindex(order)
+    mean.insert(0, "scenes", frame.groupby("label", sort=False)["scene"].nunique().reindex(order))
+    return mean
+
+
+def markdown_table(table: pd.DataFrame, label_header: str) -> str:
+    heads = [(c, h, f) for c, h, f in TABLE_COLUMNS if c in table]
+    lines = ["| " + " | ".join([label_header, "scenes"] + [h for _, h, _ in heads]) + " |",
+             "|" + "---|" * (len(heads) + 2)]
+    for label, r in table.iterrows():
+        trained = {c: not math.isnan(r.get(c.replace("lpips", "psnr"), math.nan)) for c, _, _ in heads}
+        cells = [("n/a: no LPIPS weights" if c.startswith("lpips") and math.isnan(r[c]) and trained[c] else _fmt(r[c], f))
+                 for c, _, f in heads]
+        lines.append("| " + " | ".join([str(label), str(int(r["scenes"]))] + cells) + " |")
+    return "\n".join(lines)
+
+
+def _paper_block(paper: dict) -> str:
+    if not paper:
+        return ""
+    cols = paper.get("columns", [])
+    lines = [f"**The paper's own numbers, on its own generated scenes** ({paper.get('caption', '')}; not comparable "
+             "run for run: other scenes, an RTX 3090, 10,000 iterations):", "",
+             "| " + " | ".join(["row"] + cols) + " |", "|" + "---|" * (len(cols) + 1)]
+    for r in paper.get("rows", []):
+        match = r.get("match")
+        label = r["label"] + (f" (ours: {', '.join(f'{k}={v}' for k, v in match.items())})" if match else "")
+        lines.append("| " + " | ".join([label] + [str(v) for v in r["values"]]) + " |")
+    return "\n".join(lines)
+
+
+def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float, per_scene: bool = True) -> None:
+    """DIR/results.md: the averaged table, the per-scene table, the paper's numbers, notes on n/a cells."""
+    parts = [f"# {suite.title}", "",
+             f"Suite `{suite.path}`; {len(frame)} runs over {frame['scene'].nunique()} scenes; this invocation took "
+             f"{wall_seconds:.1f} s (cached stages: {', '.join(sorted(set(frame['cached'])))}). PSNR/SSIM/LPIPS "
+             "without a prefix are the pseudo-label protocol (the paper's); held-out = true renders away from the "
+             "panorama centre. Seconds and peak MB are those of the process that computed each stage.", "",
+             f"## Averaged over scenes", "", markdown_table(average_table(frame), " / ".join(suite.row_columns)), ""]
+    notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
+    if notes:
+        parts += ["n/a cells: " + "; ".join(notes), ""]
+    paper = _paper_block(suite.paper)
+    if paper:
+        parts += [paper, ""]
+    if per_scene:
+        parts += ["## Per scene", ""]
+        for scene, g in frame.groupby("scene", sort=False):
+            parts += [f"### {scene}", "", markdown_table(average_table(g), " / ".join(suite.row_columns)), ""]
+    parts += ["Plots: `pareto.png` (error against run time), `psnr_vs_iterations.png` (when rows train).", ""]
+    with atomic_write(out / "results.md") as tmp:
+        Path(tmp).write_text("\n".join(parts))
+
+
+def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabel: str, path: Path,
+                higher_is_better: bool = False, title: str = "") -> None:
+    """Scatter of y against x: per-run points faint, per-label means solid, the Pareto front of the means dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    ax.scatter(per_run[x], per_run[y], s=10, c="0.75", label="single runs")
+    sign = -1 if higher_is_better else 1
+    pts = list(zip(mean[x], sign * mean[y]))
+    front = pareto(pts)
+    for i, (label, r) in enumerate(mean.iterrows()):
+        ax.scatter(r[x], r[y], s=40, c="C3" if i in front else "C0", zorder=3)
+        ax.annotate(str(label), (r[x], r[y]), fontsize=8, xytext=(4, 3), textcoords="offset points")
+    fp = sorted((mean[x].iloc[i], mean[y].iloc[i]) for i in front)
+    ax.plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1, label="Pareto front of the means")
+    ax.set(xlabel=f"{x.replace('_', ' ')} (seconds, log)", ylabel=ylabel, xscale="log", title=title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_write(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
+def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
+    """pareto.png (held-out PSNR, else pseudo-label PSNR, else AbsRel, against total seconds) and
+    psnr_vs_iterations.png from each training run's history."""
+    trains = "psnr_pl" in frame and frame["psnr_pl"].notna().any()
+    y, ylabel, hib = (("psnr_ho", "held-out PSNR (dB)", True) if trains and frame.get("psnr_ho") is not None
+                      and frame["psnr_ho"].notna().any() else ("psnr_pl", "pseudo-label PSNR (dB)", True) if trains
+                      else ("abs_rel", "AbsRel (median-aligned)", False))
+    ok = frame[frame[y].notna()]
+    if len(ok):
+        mean = ok.groupby("label", sort=False)[["sec_total", y]].mean()
+        pareto_plot(mean, ok, "sec_total", y, ylabel, out / "pareto.png", hib, suite.title)
+    if trains and "history" in frame:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(7.5, 5))
+        for label, g in frame[frame["history"].notna()].groupby("label", sort=False):
+            curves = [dict(tuple(map(float, kv.split(":"))) for kv in h.split(";")) for h in g["history"] if h]
+            its = sorted(set.intersection(*(set(c) for c in curves))) if curves else []
+            if its:
+                ax.plot(its, [sum(c[i] for c in curves) / len(curves) for i in its], label=str(label))
+        ax.set(xlabel="iteration", ylabel="training-view PSNR (dB, mean over scenes)", title=suite.title)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        with atomic_write(out / "psnr_vs_iterations.png", suffix=".png") as tmp:
+            fig.savefig(tmp, dpi=110)
+        plt.close(fig)

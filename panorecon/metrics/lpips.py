@@ -1,0 +1,97 @@
+"""LPIPS (Zhang et al. 2018), AlexNet variant v0.1, as the ``lpips`` package computes it with ``normalize=True``.
+
+Written here on plain torch because the ``lpips`` package imports torchvision, whose PyPI wheel pulls a CUDA
+build of torch. The layers and the weight files are the standard ones, so the numbers are the package's:
+
+- AlexNet features (torchvision's ``alexnet-owt-7be5be79.pth``, keys ``features.{0,3,6,8,10}.{weight,bias}``),
+  looked for in ``$TORCH_HOME/hub/checkpoints`` (``torch.hub.get_dir()``);
+- the linear heads (``lpips`` package ``weights/v0.1/alex.pth``, keys ``lin{0..4}.model.1.weight``), looked
+  for as ``lpips_alex_v0.1.pth`` in the same folder or at ``$PANORECON_LPIPS_WEIGHTS``.
+
+Nothing is downloaded. When a file is missing, :func:`lpips_or_reason` gives ``"n/a: no LPIPS weights (...)"``
+and no number.
+"""
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+from pathlib import Path
+
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+# the lpips package's ScalingLayer constants (inputs in [-1, 1])
+_SHIFT = (-0.030, -0.088, -0.188)
+_SCALE = (0.458, 0.448, 0.450)
+# AlexNet conv layers as (in, out, kernel, stride, padding); a max-pool (3, 2) follows the first two
+_ALEX = ((3, 64, 11, 4, 2), (64, 192, 5, 1, 2), (192, 384, 3, 1, 1), (384, 256, 3, 1, 1), (256, 256, 3, 1, 1))
+_FEATURE_INDEX = (0, 3, 6, 8, 10)  # positions of those convs in torchvision's alexnet.features
+
+
+class AlexLPIPS(nn.Module):
+    """LPIPS distance: images [B,3,H,W] in [0, 1] -> [B] (float32)."""
+
+    def __init__(self):
+        super().__init__()
+        self.convs = nn.ModuleList(nn.Conv2d(i, o, k, s, p) for i, o, k, s, p in _ALEX)
+        self.lins = nn.ModuleList(nn.Conv2d(o, 1, 1, bias=False) for _, o, *_ in _ALEX)
+        self.register_buffer("shift", torch.tensor(_SHIFT).view(1, 3, 1, 1))
+        self.register_buffer("scale", torch.tensor(_SCALE).view(1, 3, 1, 1))
+
+    def features(self, x: torch.Tensor) -> list[torch.Tensor]:
+        x = ((2 * x - 1) - self.shift) / self.scale
+        taps = []
+        for k, conv in enumerate(self.convs):
+            if k in (1, 2):
+                x = F.max_pool2d(x, 3, 2)
+            x = F.relu(conv(x))
+            taps.append(x)
+        return taps
+
+    def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        total = 0.0
+        for fa, fb, lin in zip(self.features(a), self.features(b), self.lins):
+            na = fa / (fa.pow(2).sum(1, keepdim=True).sqrt() + 1e-10)
+            nb = fb / (fb.pow(2).sum(1, keepdim=True).sqrt() + 1e-10)
+            total = total + lin((na - nb) ** 2).mean((2, 3))[:, 0]
+        return total
+
+    def load_weights(self, alexnet_state: dict, lin_state: dict) -> "AlexLPIPS":
+        """Load torchvision AlexNet and lpips v0.1 linear-head state dicts (their own key names)."""
+        for conv, idx in zip(self.convs, _FEATURE_INDEX):
+            conv.weight.data.copy_(alexnet_state[f"features.{idx}.weight"])
+            conv.bias.data.copy_(alexnet_state[f"features.{idx}.bias"])
+        for k, lin in enumerate(self.lins):
+            lin.weight.data.copy_(lin_state[f"lin{k}.model.1.weight"])
+        return self.eval().requires_grad_(False)
+
+
+def weight_paths() -> tuple[Path | None, Path | None, list[str]]:
+    """(AlexNet weights, linear-head weights, the places looked in)."""
+    hub = Path(torch.hub.get_dir()) / "checkpoints"
+    alex = sorted(hub.glob("alexnet-owt-*.pth"))
+    lin_candidates = [Path(p) for p in [os.environ.get("PANORECON_LPIPS_WEIGHTS")] if p] + [hub / "lpips_alex_v0.1.pth"]
+    lin = next((p for p in lin_candidates if p.is_file()), None)
+    return (alex[0] if alex else None), lin, [str(hub / "alexnet-owt-*.pth"), *map(str, lin_candidates)]
+
+
+@lru_cache(maxsize=1)
+def _load(alex_path: str, lin_path: str) -> AlexLPIPS:
+    return AlexLPIPS().load_weights(torch.load(alex_path, map_location="cpu", weights_only=True),
+                                    torch.load(lin_path, map_location="cpu", weights_only=True))
+
+
+def lpips_or_reason() -> AlexLPIPS | str:
+    """The loaded LPIPS network, or ``"n/a: no LPIPS weights (looked in ...)"``."""
+    alex, lin, looked = weight_paths()
+    if alex is None or lin is None:
+        return f"n/a: no LPIPS weights (looked for {' and '.join(looked)})"
+    return _load(str(alex), str(lin))
+
+
+def lpips_distance(net: AlexLPIPS, a: torch.Tensor, b: torch.Tensor) -> float:
+    """Mean LPIPS between image batches [B,H,W,3] or [H,W,3] in [0, 1]."""
+    to_nchw = lambda t: (t if t.dim() == 4 else t[None]).permute(0, 3, 1, 2).float()  # noqa: E731
+    with torch.no_grad():
+        return float(net(to_nchw(a), to_nchw(b)).mean())

@@ -1,0 +1,118 @@
+"""The pipeline's stages, each cached by content hash (see ``cache.py``): scene -> points -> train.
+
+A row of an ablation names a scene (and its ERP width), a point source with its teacher and view count, and,
+when it trains, a ``TrainConfig``. ``points`` runs the source (teacher depths and fusion inside it) and keeps
+its cloud (``cloud.ply``: the fused distances along the ERP rays) and report; ``train`` fits Gaussians from that cloud. Scenes are re-rendered on
+load (deterministic, well under a second at the widths suites use) and enter every key by name and width.
+Each stage records its seconds and the peak resident memory of the process that computed it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import resource
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..io import write_json
+from .cache import StageCache, stage_key
+
+POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
+TRAIN_CODE = POINTS_CODE + ("splat",)
+
+
+@dataclass(frozen=True)
+class Row:
+    """One run of an ablation grid. ``train`` holds TrainConfig overrides, or None for a row that trains nothing."""
+
+    scene: str
+    width: int
+    source: str
+    teacher: str | None
+    views: int | None = None
+    train: dict | None = None
+    label: str = ""
+    extra: dict = field(default_factory=dict, compare=False)  # suite columns carried into results (not keyed)
+
+    def points_key(self) -> str:
+        return stage_key("points", {"scene": self.scene, "width": self.width, "source": self.source,
+                                    "teacher": self._teacher_for_points(), "views": self.views}, code=POINTS_CODE)
+
+    def train_key(self) -> str:
+        return stage_key("train", {"scene": self.scene, "width": self.width, "teacher": self.teacher,
+                                   "config": self.train_config_dict()}, (self.points_key(),), TRAIN_CODE)
+
+    def train_config_dict(self) -> dict:
+        from ..splat.trainer import TrainConfig
+
+        return dataclasses.asdict(TrainConfig(**(self.train or {})))
+
+    def _teacher_for_points(self) -> str | None:
+        from ..sources import get_source
+
+        return self.teacher if get_source(self.source).uses_teacher else None
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def teacher_depth_fn(scene, teacher_spec: str | None):
+    """cameras -> list of z-like depth maps from the teacher, for the trainer's Pearson term (scale and shift do
+    not matter to it; disparity is inverted), or None without a teacher."""
+    if not teacher_spec:
+        return None
+    from ..teachers import get_teacher
+
+    teacher = get_teacher(teacher_spec)
+
+    def depth_fn(cameras):
+        with np.errstate(divide="ignore"):
+            return [v.depth if v.kind != "disparity" else 1.0 / v.depth for v in teacher.predict_views(scene, cameras)]
+
+    return depth_fn
+
+
+def run_points(cache: StageCache, row: Row, key: str | None = None) -> dict:
+    """The point source's record: report, seconds, peak_rss_mb, cached (bool); cloud.ply in its folder.
+    ``key``: the stage key as the caller computed it (a run keeps the keys it started with even if the code
+    changes meanwhile); default ``row.points_key()``."""
+    key = key or row.points_key()
+    done = cache.done("points", key)
+    if done is not None:
+        return {**done, "cached": True}
+    from ..scenes import load_scene
+    from ..sources import run_source
+
+    t = time.perf_counter()
+    scene = load_scene(row.scene, row.width)
+    scene_s = time.perf_counter() - t
+    pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views)
+    folder = cache.folder("points", key)
+    pc.save_ply(folder / "cloud.ply")
+    write_json(folder / "report.json", report)
+    record = {"stage": "points", "key": key, "report": report, "scene_seconds": scene_s,
+              "seconds": report["seconds"]["total"], "peak_rss_mb": _peak_mb(), "points": len(pc)}
+    return {**cache.finish("points", key, record), "cached": False}
+
+
+def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | None = None,
+              points_key: str | None = None) -> dict:
+    """The trainer's record: metrics (metrics.json), seconds, peak_rss_mb, cached; resumes an interrupted run."""
+    key = key or row.train_key()
+    done = cache.done("train", key)
+    if done is not None:
+        return {**done, "cached": True}
+    from ..geometry import PointCloud
+    from ..scenes import load_scene
+    from ..splat.trainer import TrainConfig, train
+
+    points = run_points(cache, row, points_key)
+    scene = load_scene(row.scene, row.width)
+    cloud = PointCloud.load_ply(cache.folder("points", points["key"]) / "cloud.ply")
+    metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
+                    teacher_depth_fn(scene, row.teacher), progress=progress)
+    record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
+              "peak_rss_mb": _peak_mb()}
+    return {**cache.finish("train", key, record), "cached": False}

@@ -1,0 +1,78 @@
+"""The ablation harness end to end on a tiny suite: outputs, caching across runs, the Dask engine."""
+import pandas as pd
+import pytest
+
+from panorecon.evaluation.ablate import run_suite
+from panorecon.evaluation.bench import compare
+from panorecon.evaluation.suite import load_suite
+
+TINY = """
+title = "tiny"
+rows = ["source"]
+[defaults]
+width = 64
+teacher = "sim:clean"
+iters = 8
+res = 16
+labels = 6
+heldout = 1
+sh_degree = 0
+history_every = 4
+[grid]
+scene = ["bedroom"]
+source = ["fibonacci", "random"]
+"""
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ablate")
+    (d / "tiny.toml").write_text(TINY)
+    suite = load_suite(d / "tiny.toml")
+    return d, suite, run_suite(suite, d / "out", jobs=2, progress=False)
+
+
+def test_outputs_have_every_metric_with_time_and_memory(first_run):
+    d, suite, frame = first_run
+    csv = pd.read_csv(d / "out" / "results.csv")
+    assert list(csv["source"]) == ["fibonacci", "random"]
+    for col in ("psnr_pl", "ssim_pl", "psnr_ho", "abs_rel", "chamfer", "sec_points", "sec_train", "sec_total",
+                "peak_mb", "commit", "version_torch", "lpips_pl_note"):
+        assert col in csv, col
+    assert csv["psnr_pl"].notna().all() and (csv["peak_mb"] > 100).all() and (csv["sec_total"] > 0).all()
+    assert csv.loc[0, "abs_rel"] < 0.2 and pd.isna(csv.loc[1, "abs_rel"])  # random points have no depth map
+    assert set(csv["cached"]) == {"none"}
+    md = (d / "out" / "results.md").read_text()
+    assert "| fibonacci | 1 |" in md and "n/a: no LPIPS weights" in md
+    assert (d / "out" / "pareto.png").stat().st_size > 10_000
+    assert (d / "out" / "psnr_vs_iterations.png").is_file()
+
+
+def test_second_run_reads_everything_from_the_cache(first_run):
+    d, suite, frame = first_run
+    again = run_suite(suite, d / "out", jobs=1, progress=False)
+    assert set(again["cached"]) == {"points,train"}
+    pd.testing.assert_series_equal(again["psnr_pl"], frame["psnr_pl"])
+
+
+def test_dask_engine_gives_the_same_points(first_run, tmp_path):
+    d, _, frame = first_run
+    (tmp_path / "pts.toml").write_text(TINY.replace("iters = 8", "train = false"))
+    out = run_suite(load_suite(tmp_path / "pts.toml"), tmp_path / "out", jobs=1, engine="dask", progress=False)
+    assert out.loc[0, "abs_rel"] == pytest.approx(frame.loc[0, "abs_rel"], rel=1e-9)
+    assert "psnr_pl" not in out
+
+
+def test_bench_compare_fails_on_regressions_and_warns_on_slowdowns():
+    base = {"suite": {"fibonacci": {"abs_rel": 0.03, "psnr_pl": 21.0}},
+            "fusion": {"abs_rel": 0.01, "speedup_vs_reference": 3.0},
+            "rasterizer": {"speedup_cpu_vs_torch": 10.0, "max_abs_difference": {"image": 0, "grad_means": 0}}}
+    same = {**base, "rasterizer": {**base["rasterizer"], "max_abs_difference": {"image": 1e-6, "grad_means": 1e-5}}}
+    assert compare(same, base) == ([], [])
+    worse = {**same, "suite": {"fibonacci": {"abs_rel": 0.2, "psnr_pl": 18.0}},
+             "fusion": {"abs_rel": 0.01, "speedup_vs_reference": 1.0}}
+    fails, warns = compare(worse, base)
+    assert len(fails) == 2 and any("abs_rel" in f for f in fails) and any("psnr_pl" in f for f in fails)
+    assert len(warns) == 1 and "fusion speedup" in warns[0]
+    drift = {**same, "rasterizer": {**same["rasterizer"], "max_abs_difference": {"image": 0.1, "grad_means": 0}}}
+    assert any("rasterizer" in f for f in compare(drift, base)[0])

@@ -1,0 +1,32 @@
+import json
+
+from panorecon.pipeline import Row, StageCache, code_digest, run_points, stage_key
+
+
+def test_stage_key_depends_on_params_upstream_and_code():
+    k = stage_key("points", {"a": 1}, (), ("geometry",))
+    assert k == stage_key("points", {"a": 1}, (), ("geometry",))
+    assert k != stage_key("points", {"a": 2}, (), ("geometry",))
+    assert k != stage_key("points", {"a": 1}, ("up",), ("geometry",))
+    assert k != stage_key("points", {"a": 1}, (), ("fusion",))
+    assert code_digest(("geometry",)) != code_digest(("fusion",))
+
+
+def test_rows_share_the_points_stage_but_not_training():
+    a = Row("bedroom", 64, "fibonacci", "sim:clean", train={"iters": 5})
+    b = Row("bedroom", 64, "fibonacci", "sim:clean", train={"iters": 6})
+    assert a.points_key() == b.points_key() and a.train_key() != b.train_key()
+    # a source that uses no teacher shares its points whatever the teacher (which only feeds training)
+    r1, r2 = Row("bedroom", 64, "random", "sim:clean"), Row("bedroom", 64, "random", "sim:relative")
+    assert r1.points_key() == r2.points_key()
+
+
+def test_points_stage_is_computed_once_and_an_unfinished_folder_is_redone(tmp_path):
+    cache = StageCache(tmp_path)
+    row = Row("bedroom", 64, "fibonacci", "sim:clean")
+    first = run_points(cache, row)
+    assert not first["cached"] and first["points"] > 0
+    again = run_points(cache, row)
+    assert again["cached"] and again["report"] == json.loads(json.dumps(first["report"]))
+    (cache.folder("points", row.points_key()) / "done.json").unlink()  # as if interrupted before finishing
+    assert not run_points(cache, row)["cached"]
