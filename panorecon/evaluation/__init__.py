@@ -1,0 +1,1 @@
+"""Evaluation: ablation suites (``panorecon ablate``), their reports, and the benchmarks (``panorecon bench``)."""
