@@ -249,7 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--iters", type=int, default=None, help="optimisation steps (default 3000)")
     tr.add_argument("--res", type=int, default=None, help="label view size in pixels (default 128)")
     tr.add_argument("--labels", type=int, default=None, help="pseudo-label views (default 240)")
-    tr.add_argument("--backend", choices=["auto", "torch", "cpu"], default=None)
+    tr.add_argument("--backend", choices=["auto", "torch", "cpu"], default=None,
+                    help="rasterizer (training runs on CPU tensors; gsplat serves CUDA tensors through rasterize())")
     tr.add_argument("--strategy", choices=["default", "adaptive"], default=None,
                     help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)")
     tr.add_argument("--seed", type=int, default=None)
@@ -275,6 +276,10 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--out", default=None, help="also write the result JSON here")
     be.add_argument("--update-baseline", action="store_true", help="store this run as the baseline")
     be.set_defaults(fn=cmd_bench)
+
+    from .text2pano.command import add_generate_parser
+
+    add_generate_parser(sub)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")

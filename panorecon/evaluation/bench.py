@@ -42,8 +42,9 @@ def measure(suite_path, quick: bool = True) -> dict:
                       "speedup_vs_reference": fusion["speedup_vs_reference"]},
            "rasterizer": {"max_abs_difference": raster["max_abs_difference"],
                           "speedup_cpu_vs_torch": raster["results"][0]["speedup_cpu_vs_torch"]}}
-    for label, g in frame.groupby("label", sort=False):
-        out["suite"][label] = {k: float(g[k].mean()) for k in ("abs_rel", "chamfer", "psnr_pl", "psnr_ho") if k in g}
+    for label, g in frame.groupby("label", sort=False):  # metrics a row does not define (NaN) are left out
+        out["suite"][label] = {k: float(g[k].mean()) for k in ("abs_rel", "chamfer", "psnr_pl", "psnr_ho")
+                               if k in g and g[k].notna().all()}
     return out
 
 
@@ -55,7 +56,11 @@ def compare(current: dict, baseline: dict) -> tuple[list[str], list[str]]:
         if base is None:
             warns.append(f"suite row {label!r} has no baseline (run with --update-baseline)")
             continue
+        for k in set(base) - set(metrics):
+            fails.append(f"{label}: {k} is no longer measured (NaN or missing; baseline {base[k]:.4g})")
         for k, v in metrics.items():
+            if k not in base:
+                continue
             if not math.isfinite(v):
                 fails.append(f"{label}: {k} is {v}")
             elif k.startswith("psnr") and v < base[k] - PSNR_SLACK_DB:

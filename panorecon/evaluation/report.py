@@ -88,25 +88,34 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
 
 
 def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabel: str, path: Path,
-                higher_is_better: bool = False, title: str = "") -> None:
-    """Scatter of y against x: per-run points faint, per-label means solid, the Pareto front of the means dashed."""
+                higher_is_better: bool = False, title: str = "", label_col: str = "label") -> None:
+    """Two panels of y against x (log seconds): every run coloured by scene and labelled (left), and the
+    per-label means over scenes with their Pareto front (right)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 5))
-    ax.scatter(per_run[x], per_run[y], s=10, c="0.75", label="single runs")
+    fig, (ax_runs, ax_mean) = plt.subplots(1, 2, figsize=(13, 5.2))
+    for k, (scene, g) in enumerate(per_run.groupby("scene", sort=False) if "scene" in per_run else [("runs", per_run)]):
+        ax_runs.scatter(g[x], g[y], s=18, color=f"C{k}", label=str(scene))
+        for j, (_, r) in enumerate(g.iterrows()):
+            ax_runs.annotate(str(r[label_col]), (r[x], r[y]), fontsize=6, color=f"C{k}",
+                             xytext=(3, 6 if j % 2 else -9), textcoords="offset points")
+    ax_runs.set(xlabel=f"{x} (seconds, log)", ylabel=ylabel, xscale="log", title="every run, by scene")
+    ax_runs.legend(fontsize=7)
     sign = -1 if higher_is_better else 1
     pts = list(zip(mean[x], sign * mean[y]))
     front = pareto(pts)
     for i, (label, r) in enumerate(mean.iterrows()):
-        ax.scatter(r[x], r[y], s=40, c="C3" if i in front else "C0", zorder=3)
-        ax.annotate(str(label), (r[x], r[y]), fontsize=8, xytext=(4, 3), textcoords="offset points")
+        ax_mean.scatter(r[x], r[y], s=40, color="C3" if i in front else "C0", zorder=3)
+        ax_mean.annotate(str(label), (r[x], r[y]), fontsize=8, xytext=(4, 7 if i % 2 else -11), textcoords="offset points")
     fp = sorted((mean[x].iloc[i], mean[y].iloc[i]) for i in front)
-    ax.plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1, label="Pareto front of the means")
-    ax.set(xlabel=f"{x.replace('_', ' ')} (seconds, log)", ylabel=ylabel, xscale="log", title=title)
-    ax.legend(fontsize=8)
+    ax_mean.plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1.2, label="Pareto front (red)")
+    ax_mean.set(xlabel=f"{x} (seconds, log; mean over scenes)", ylabel=f"{ylabel}, mean over scenes", xscale="log",
+                title="averaged")
+    ax_mean.legend(fontsize=8)
+    fig.suptitle(title)
     fig.tight_layout()
     with atomic_write(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110)

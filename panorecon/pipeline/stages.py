@@ -1,6 +1,7 @@
 """The pipeline's stages, each cached by content hash (see ``cache.py``): scene -> points -> train.
 
-A row of an ablation names a scene (and its ERP width), a point source with its teacher and view count, and,
+A row of an ablation names a scene (and its ERP width; ``prompt:<text>`` generates one, see
+``load_row_scene``), a point source with its teacher and view count, and,
 when it trains, a ``TrainConfig``. ``points`` runs the source (teacher depths and fusion inside it) and keeps
 its cloud (``cloud.ply``: the fused distances along the ERP rays) and report; ``train`` fits Gaussians from that cloud. Scenes are re-rendered on
 load (deterministic, well under a second at the widths suites use) and enter every key by name and width.
@@ -54,6 +55,33 @@ class Row:
         return self.teacher if get_source(self.source).uses_teacher else None
 
 
+PROMPT_PREFIX = "prompt:"
+TEXT2PANO_MODEL_ENV = "PANORECON_TEXT2PANO_MODEL"
+
+
+def load_row_scene(name: str, width: int, cache: StageCache):
+    """A registered scene or image path, or ``prompt:<preset or text>``: a panorama generated once by
+    ``text2pano`` (model from $PANORECON_TEXT2PANO_MODEL, 2048 wide, cached by prompt, model, seed and
+    settings under the cache's text2pano/ folder) and then loaded like any ERP image. Only prompt scenes
+    import the diffusion stack."""
+    from ..scenes import load_scene
+
+    if not name.startswith(PROMPT_PREFIX):
+        return load_scene(name, width)
+    import os
+
+    from ..io import PanoreconInputError
+    from ..scenes.real import scene_from_image
+    from ..text2pano import GenerateConfig, generate_cached
+
+    model = os.environ.get(TEXT2PANO_MODEL_ENV)
+    if not model:
+        raise PanoreconInputError(f"scene {name!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} to a local diffusers "
+                                  "model folder (see `panorecon generate --help`)")
+    png = generate_cached(name[len(PROMPT_PREFIX):], model, GenerateConfig(), cache.root / "text2pano")
+    return scene_from_image(png, width, name=name, description=f"generated from {name!r} by {model}")
+
+
 def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
@@ -82,11 +110,10 @@ def run_points(cache: StageCache, row: Row, key: str | None = None) -> dict:
     done = cache.done("points", key)
     if done is not None:
         return {**done, "cached": True}
-    from ..scenes import load_scene
     from ..sources import run_source
 
     t = time.perf_counter()
-    scene = load_scene(row.scene, row.width)
+    scene = load_row_scene(row.scene, row.width, cache)
     scene_s = time.perf_counter() - t
     pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views)
     folder = cache.folder("points", key)
@@ -105,11 +132,10 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
     if done is not None:
         return {**done, "cached": True}
     from ..geometry import PointCloud
-    from ..scenes import load_scene
     from ..splat.trainer import TrainConfig, train
 
     points = run_points(cache, row, points_key)
-    scene = load_scene(row.scene, row.width)
+    scene = load_row_scene(row.scene, row.width, cache)
     cloud = PointCloud.load_ply(cache.folder("points", points["key"]) / "cloud.ply")
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
                     teacher_depth_fn(scene, row.teacher), progress=progress)

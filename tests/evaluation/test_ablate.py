@@ -74,5 +74,7 @@ def test_bench_compare_fails_on_regressions_and_warns_on_slowdowns():
     fails, warns = compare(worse, base)
     assert len(fails) == 2 and any("abs_rel" in f for f in fails) and any("psnr_pl" in f for f in fails)
     assert len(warns) == 1 and "fusion speedup" in warns[0]
+    lost = {**same, "suite": {"fibonacci": {"psnr_pl": 21.0}}}
+    assert any("no longer measured" in f for f in compare(lost, base)[0])
     drift = {**same, "rasterizer": {**same["rasterizer"], "max_abs_difference": {"image": 0.1, "grad_means": 0}}}
     assert any("rasterizer" in f for f in compare(drift, base)[0])

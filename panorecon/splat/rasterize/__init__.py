@@ -1,29 +1,35 @@
-"""Gaussian rasterization behind one gsplat-like function. Backends: ``torch`` (the pure-PyTorch reference)
-and ``cpu`` (C++ with a hand-written backward); ``auto`` picks ``cpu`` when it builds, else ``torch``."""
+"""Gaussian rasterization behind one gsplat-like function. Backends: ``torch`` (the pure-PyTorch reference),
+``cpu`` (C++ with a hand-written backward) and ``gsplat`` (CUDA); ``auto`` picks ``gsplat`` for CUDA tensors
+when gsplat is installed, else ``cpu`` when it builds, else ``torch``."""
 from __future__ import annotations
 
 import logging
 
 import torch
 
-from . import cpu_backend
+from . import cpu_backend, gsplat_backend
 
 from .projection import project_gaussians, quat_to_rotmat
 from .sh import sh_to_rgb
 from .torch_backend import rasterize_tiles
 
-BACKENDS = ("auto", "torch", "cpu")
+BACKENDS = ("auto", "torch", "cpu", "gsplat")
 log = logging.getLogger("panorecon.splat")
 _announced: set[str] = set()
 
 
-def resolve_backend(backend: str) -> str:
-    """'auto' -> 'cpu' when the C++ kernel is available, else 'torch'."""
+def resolve_backend(backend: str, cuda_tensors: bool = False) -> str:
+    """'auto' -> 'gsplat' for CUDA tensors when gsplat is installed, else 'cpu' when the C++ kernel is
+    available, else 'torch'."""
     if backend not in BACKENDS:
         raise ValueError(f"backend={backend!r}: expected one of {BACKENDS}")
     if backend == "cpu" and not cpu_backend.available():
         raise RuntimeError("backend='cpu' asked for, but the C++ rasterizer could not be built (see the log)")
-    chosen = backend if backend != "auto" else ("cpu" if cpu_backend.available() else "torch")
+    if backend == "gsplat" and not gsplat_backend.available():
+        raise RuntimeError("backend='gsplat' asked for, but CUDA or the gsplat package is missing "
+                           "(pip install 'panorecon[cuda]' on a CUDA machine)")
+    chosen = backend if backend != "auto" else ("gsplat" if cuda_tensors and gsplat_backend.available() else
+                                                "cpu" if cpu_backend.available() else "torch")
     if chosen not in _announced:
         _announced.add(chosen)
         log.info("rasterizer backend: %s%s", chosen, " (auto)" if backend == "auto" else "")
@@ -41,7 +47,14 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
     radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
     """
-    backend = resolve_backend(backend)
+    backend = resolve_backend(backend, means.is_cuda)
+    if backend == "gsplat":
+        if return_contrib:
+            raise ValueError("return_contrib: gsplat does not return per-Gaussian contributions; use backend='cpu' or 'torch'")
+        image, alpha, depth, meta = gsplat_backend.rasterize_gsplat(
+            means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree, near_plane, far_plane,
+            backgrounds, eps2d, tile_size)
+        return image, alpha, depth, {**meta, "backend": backend}
     means2d, conics, depths, radii = project_gaussians(means, quats, scales, viewmats, Ks, width, height,
                                                        near_plane, far_plane, eps2d)
     if sh_degree is None:
