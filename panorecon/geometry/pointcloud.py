@@ -40,13 +40,16 @@ class PointCloud:
         return len(self.xyz)
 
     def subset(self, index: np.ndarray) -> "PointCloud":
-        """The points selected by a boolean mask or index array."""
+        """The points selected by a boolean mask or index array (per-point scalars in meta['scalars'] too)."""
+        meta = dict(self.meta)
+        if "scalars" in meta:
+            meta["scalars"] = {k: np.asarray(v)[index] for k, v in meta["scalars"].items()}
         return PointCloud(
             self.xyz[index],
             self.rgb[index],
             None if self.normals is None else self.normals[index],
             None if self.view_id is None else self.view_id[index],
-            dict(self.meta),
+            meta,
         )
 
     def to_open3d(self):
