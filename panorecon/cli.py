@@ -277,9 +277,11 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--update-baseline", action="store_true", help="store this run as the baseline")
     be.set_defaults(fn=cmd_bench)
 
+    from .export import add_export_parser
     from .text2pano.command import add_generate_parser
 
     add_generate_parser(sub)
+    add_export_parser(sub)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")

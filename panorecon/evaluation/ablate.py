@@ -86,7 +86,9 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
     tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
     points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
     _run_tasks(_points_task, list(points_todo.values()), str(cache.root), jobs, engine, scheduler, "points", progress)
-    train_todo = {t[2]: t for t in tasks if t[2] is not None and cache.done("train", t[2]) is None}
+    unavailable = {t[1] for t in tasks if "unavailable" in (cache.done("points", t[1]) or {})}
+    train_todo = {t[2]: t for t in tasks if t[2] is not None and t[1] not in unavailable
+                  and cache.done("train", t[2]) is None}
     _run_tasks(_train_task, list(train_todo.values()), str(cache.root), jobs, engine, scheduler, "train", progress)
     env = environment()
     frame = pd.DataFrame([result_row(cache, *t, env, t[1] not in points_todo, t[2] is not None and t[2] not in train_todo)
@@ -110,11 +112,15 @@ def result_row(cache: StageCache, row: Row, points_key: str, train_key: str | No
     """One results.csv row: the row's settings, every metric with its protocol, seconds per stage, peak memory,
     versions, commit, and which stages came from the cache."""
     pts = cache.done("points", points_key)
+    if "unavailable" in pts:
+        return {"label": row.label, "scene": row.scene, "width": row.width, "source": row.source,
+                "teacher": row.teacher, **row.extra, "unavailable_note": pts["unavailable"], "cached": "none",
+                "commit": env["commit"]}
     rep = pts["report"]
     depth = rep.get("depth") if isinstance(rep.get("depth"), dict) else {}
     points = rep.get("points", {})
     rec = {"label": row.label, "scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,
-           "views": rep.get("views"), **row.extra,
+           "views": rep.get("views"), "panoramas": rep.get("panoramas", 1), **row.extra,
            "abs_rel": _num(depth.get("abs_rel")), "rmse": _num(depth.get("rmse")), "delta1": _num(depth.get("delta1")),
            "teacher_view_abs_rel": _num(rep.get("teacher_per_view_abs_rel_median")),
            "points": points.get("count"), "chamfer": _num(points.get("chamfer")),

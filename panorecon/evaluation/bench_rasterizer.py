@@ -68,7 +68,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
-    grid = [(64, 2000)] if args.quick else [(s, n) for s in (128, 256, 512) for n in (10_000, 100_000)]
+    grid = [(128, 10_000)] if args.quick else [(s, n) for s in (128, 256, 512) for n in (10_000, 100_000)]
     fwd_bwd("cpu", 32, 100)  # build / load the extension outside the timings
     rows = []
     for size, n in grid:

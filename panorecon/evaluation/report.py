@@ -10,7 +10,7 @@ from ..io import atomic_write
 
 # (column, header, format) of the averaged table; a column absent from the frame (no training) is left out
 TABLE_COLUMNS = [
-    ("psnr_pl", "PSNR", "{:.2f}"), ("ssim_pl", "SSIM", "{:.3f}"), ("lpips_pl", "LPIPS", "{:.3f}"),
+    ("panoramas", "panoramas", "{:.0f}"), ("psnr_pl", "PSNR", "{:.2f}"), ("ssim_pl", "SSIM", "{:.3f}"), ("lpips_pl", "LPIPS", "{:.3f}"),
     ("psnr_ho", "held-out PSNR", "{:.2f}"), ("ssim_ho", "held-out SSIM", "{:.3f}"),
     ("abs_rel", "AbsRel", "{:.4f}"), ("chamfer", "Chamfer (m)", "{:.4f}"), ("accuracy", "Acc. (m)", "{:.4f}"),
     ("completeness", "Comp. (m)", "{:.4f}"), ("points", "points", "{:,.0f}"), ("gaussians", "Gaussians", "{:,.0f}"),

@@ -61,9 +61,9 @@ TEXT2PANO_MODEL_ENV = "PANORECON_TEXT2PANO_MODEL"
 
 def load_row_scene(name: str, width: int, cache: StageCache):
     """A registered scene or image path, or ``prompt:<preset or text>``: a panorama generated once by
-    ``text2pano`` (model from $PANORECON_TEXT2PANO_MODEL, 2048 wide, cached by prompt, model, seed and
-    settings under the cache's text2pano/ folder) and then loaded like any ERP image. Only prompt scenes
-    import the diffusion stack."""
+    ``text2pano`` at the row's width (model from $PANORECON_TEXT2PANO_MODEL, steps from
+    $PANORECON_TEXT2PANO_STEPS, default 50; cached by prompt, model, seed and settings under the cache's
+    text2pano/ folder) and then loaded like any ERP image. Only prompt scenes import the diffusion stack."""
     from ..scenes import load_scene
 
     if not name.startswith(PROMPT_PREFIX):
@@ -78,7 +78,8 @@ def load_row_scene(name: str, width: int, cache: StageCache):
     if not model:
         raise PanoreconInputError(f"scene {name!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} to a local diffusers "
                                   "model folder (see `panorecon generate --help`)")
-    png = generate_cached(name[len(PROMPT_PREFIX):], model, GenerateConfig(), cache.root / "text2pano")
+    cfg = GenerateConfig(width=width, steps=int(os.environ.get("PANORECON_TEXT2PANO_STEPS", 50)))
+    png = generate_cached(name[len(PROMPT_PREFIX):], model, cfg, cache.root / "text2pano")
     return scene_from_image(png, width, name=name, description=f"generated from {name!r} by {model}")
 
 
@@ -110,12 +111,20 @@ def run_points(cache: StageCache, row: Row, key: str | None = None) -> dict:
     done = cache.done("points", key)
     if done is not None:
         return {**done, "cached": True}
+    from ..io import PanoreconInputError
     from ..sources import run_source
 
     t = time.perf_counter()
     scene = load_row_scene(row.scene, row.width, cache)
     scene_s = time.perf_counter() - t
-    pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views)
+    try:
+        pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views)
+    except PanoreconInputError as e:  # a source that cannot run here says why ("n/a: needs a CUDA build ...")
+        if not str(e).startswith("n/a"):
+            raise
+        record = {"stage": "points", "key": key, "unavailable": str(e), "scene_seconds": scene_s,
+                  "seconds": time.perf_counter() - t, "peak_rss_mb": _peak_mb()}
+        return {**cache.finish("points", key, record), "cached": False}
     folder = cache.folder("points", key)
     pc.save_ply(folder / "cloud.ply")
     write_json(folder / "report.json", report)
@@ -135,6 +144,8 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
     from ..splat.trainer import TrainConfig, train
 
     points = run_points(cache, row, points_key)
+    if "unavailable" in points:  # nothing to train from; the row reads n/a with the source's reason
+        return {"stage": "train", "key": key, "unavailable": points["unavailable"], "cached": False}
     scene = load_row_scene(row.scene, row.width, cache)
     cloud = PointCloud.load_ply(cache.folder("points", points["key"]) / "cloud.ply")
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),

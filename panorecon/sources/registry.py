@@ -2,7 +2,8 @@
 
 In-tree sources register with ``@register_source(name, description)``; third-party packages add theirs
 through the ``panorecon.sources`` entry-point group (the entry point loads a callable of the same
-signature, registered under the entry point's name).
+signature, registered under the entry point's name; a ``uses_teacher = False`` attribute on it says it needs
+no depth teacher; the first line of its docstring is its description).
 """
 from __future__ import annotations
 
@@ -44,7 +45,9 @@ def _load_entry_points() -> None:
     _loaded_entry_points = True
     for ep in entry_points(group="panorecon.sources"):
         if ep.name not in _SOURCES:
-            _SOURCES[ep.name] = SourceSpec(ep.name, f"plug-in from {ep.value}", ep.load())
+            fn = ep.load()
+            doc = (fn.__doc__ or "").strip().split("\n")[0] or f"plug-in from {ep.value}"
+            _SOURCES[ep.name] = SourceSpec(ep.name, doc, fn, getattr(fn, "uses_teacher", True))
 
 
 def list_sources() -> list[SourceSpec]:

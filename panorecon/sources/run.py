@@ -66,8 +66,9 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     report = {"source": source_name, "teacher": teacher.name if teacher else None, "scene": scene.name,
               "erp": [scene.width, scene.height], "views": info.get("views"), "view_size": info.get("view_size"),
               "fov_deg": info.get("fov_deg")}
-    if "fusion" in info:
-        report["fusion"] = info["fusion"]
+    for key in ("fusion", "panoramas", "baseline"):  # solver statistics; multi-view baselines' inputs and report
+        if key in info:
+            report[key] = info[key]
     metric = bool(info.get("view_depths") and all(v.metric for v in info["view_depths"]))
     distance = info.get("distance")
     if not scene.has_ground_truth:

@@ -7,6 +7,7 @@ from .presets import PRESETS
 
 
 def add_generate_parser(sub) -> None:
+    """Register ``panorecon generate`` on the CLI's subparsers."""
     g = sub.add_parser("generate", help="text -> 360° panorama (sliding-window diffusion with a seam block)")
     what = g.add_mutually_exclusive_group(required=True)
     what.add_argument("--prompt", help="scene description (the panorama trigger phrase is prepended)")
@@ -16,17 +17,21 @@ def add_generate_parser(sub) -> None:
     g.add_argument("--steps", type=int, default=50)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--width", type=int, default=2048, help="panorama width (height = width / 2)")
+    g.add_argument("--window", type=int, default=64, help="sliding-window width in latent columns (8 px each)")
+    g.add_argument("--stride", type=int, default=16, help="latent columns between sliding windows")
     g.add_argument("--no-seam-block", action="store_true", help="turn the seam block off (for comparison)")
     g.add_argument("--out", required=True, help="output PNG")
     g.set_defaults(fn=run_generate)
 
 
 def run_generate(args: argparse.Namespace) -> int:
+    """Generate, write ``--out`` atomically, print its size and seam score; bad input raises PanoreconInputError."""
     from ..io import write_image
     from ..metrics.seam import seam_discontinuity
     from .generator import GenerateConfig, PanoramaGenerator
 
-    cfg = GenerateConfig(width=args.width, steps=args.steps, seed=args.seed, seam_block=not args.no_seam_block)
+    cfg = GenerateConfig(width=args.width, steps=args.steps, seed=args.seed, window=args.window, stride=args.stride,
+                         seam_block=not args.no_seam_block)
     cfg.check()
     gen = PanoramaGenerator.from_pretrained(args.model, args.lora)
     img = gen.generate(args.preset or args.prompt, cfg, progress=True)

@@ -78,3 +78,16 @@ def test_bench_compare_fails_on_regressions_and_warns_on_slowdowns():
     assert any("no longer measured" in f for f in compare(lost, base)[0])
     drift = {**same, "rasterizer": {**same["rasterizer"], "max_abs_difference": {"image": 0.1, "grad_means": 0}}}
     assert any("rasterizer" in f for f in compare(drift, base)[0])
+
+
+def test_a_source_that_cannot_run_here_reads_na_and_the_suite_goes_on(tmp_path):
+    import pycolmap
+
+    if pycolmap.has_cuda:
+        pytest.skip("colmap-mvs runs here")
+    (tmp_path / "s.toml").write_text(TINY.replace('source = ["fibonacci", "random"]', 'source = ["colmap-mvs", "random"]')
+                                     .replace("iters = 8", "train = false"))
+    out = run_suite(load_suite(tmp_path / "s.toml"), tmp_path / "out", jobs=1, progress=False)
+    assert out.loc[0, "unavailable_note"].startswith("n/a: needs a CUDA build of pycolmap")
+    assert out.loc[1, "points"] == 100_000
+    assert "n/a: needs a CUDA build" in (tmp_path / "out" / "results.md").read_text()

@@ -22,7 +22,9 @@ def test_a_stride_wider_than_the_window_is_refused():
 
 
 def test_paper_layout_gives_nine_windows():
-    # 512 x 2048 image -> 64 x 256 latent; 64-column windows with stride 24 -> 9 patches (as in the paper)
+    # 512 x 2048 image -> 64 x 256 latent; nine patches as in the paper: StitchDiffusion's 128-column views
+    # with stride 16, or 64-column windows with stride 24
+    assert window_starts(256, 128, 16) == list(range(0, 129, 16))
     assert len(window_starts(256, 64, 24)) == 9
 
 
