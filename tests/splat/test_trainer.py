@@ -43,23 +43,27 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     assert len(load_ply(tmp_path / "b" / "point_cloud.ply")) == after["gaussians"]
 
 
-def test_an_interrupted_run_resumes_to_the_same_state(setup, tmp_path, monkeypatch):
-    scene, pc, depth_fn = setup
-    full = train(scene, pc, cfg(), tmp_path / "full", depth_fn, progress=False)
-    calls = {"n": 0}
-    real = trainer_mod.total_loss
+def interrupt_training(monkeypatch, run, at_step: int = 45) -> None:
+    """Run ``run()`` with the loss raising KeyboardInterrupt at step ``at_step`` (after a checkpoint)."""
+    real, calls = trainer_mod.total_loss, {"n": 0}
 
     def interrupt(*a, **k):
         calls["n"] += 1
-        if calls["n"] == 45:
+        if calls["n"] == at_step:
             raise KeyboardInterrupt
         return real(*a, **k)
 
     monkeypatch.setattr(trainer_mod, "total_loss", interrupt)
     with pytest.raises(KeyboardInterrupt):
-        train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False)
-    assert (tmp_path / "resumed" / "ckpt.pt").exists()
+        run()
     monkeypatch.setattr(trainer_mod, "total_loss", real)
+
+
+def test_an_interrupted_run_resumes_to_the_same_state(setup, tmp_path, monkeypatch):
+    scene, pc, depth_fn = setup
+    full = train(scene, pc, cfg(), tmp_path / "full", depth_fn, progress=False)
+    interrupt_training(monkeypatch, lambda: train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False))
+    assert (tmp_path / "resumed" / "ckpt.pt").exists()
     resumed = train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False)
     a, b = load_ply(tmp_path / "full" / "point_cloud.ply"), load_ply(tmp_path / "resumed" / "point_cloud.ply")
     for x, y in zip(a.parameters(), b.parameters()):
@@ -163,19 +167,7 @@ def test_adaptive_training_resumes_exactly(setup, tmp_path, monkeypatch):
     c = cfg(strategy="adaptive")
     full = train(scene, pc, c, tmp_path / "full", depth_fn, progress=False)
     assert full["strategy"] == "adaptive"
-    real = trainer_mod.total_loss
-    calls = {"n": 0}
-
-    def interrupt(*a, **k):
-        calls["n"] += 1
-        if calls["n"] == 45:
-            raise KeyboardInterrupt
-        return real(*a, **k)
-
-    monkeypatch.setattr(trainer_mod, "total_loss", interrupt)
-    with pytest.raises(KeyboardInterrupt):
-        train(scene, pc, c, tmp_path / "resumed", depth_fn, progress=False)
-    monkeypatch.setattr(trainer_mod, "total_loss", real)
+    interrupt_training(monkeypatch, lambda: train(scene, pc, c, tmp_path / "resumed", depth_fn, progress=False))
     train(scene, pc, c, tmp_path / "resumed", depth_fn, progress=False)
     a, b = load_ply(tmp_path / "full" / "point_cloud.ply"), load_ply(tmp_path / "resumed" / "point_cloud.ply")
     assert len(a) == len(b)
