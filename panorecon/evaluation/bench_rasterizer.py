@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import statistics
 import sys
 import time
 
 import torch
 
+from ..io import peak_rss_mb
 from .environment import emit, environment
 
 
@@ -82,7 +82,7 @@ def main(argv=None) -> dict:
         print(json.dumps(row), file=sys.stderr, flush=True)
     return emit({"benchmark": "rasterizer forward+backward", **environment(), "threads": torch.get_num_threads(),
                  "max_abs_difference": max_difference(*grid[0]),
-                 "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "results": rows}, args.out)
+                 "peak_rss_mb": peak_rss_mb(), "results": rows}, args.out)
 
 
 if __name__ == "__main__":

@@ -5,10 +5,11 @@ import json
 import multiprocessing as mp
 import os
 import platform
-import resource
 import subprocess
 import sys
 from pathlib import Path
+
+from ..io import peak_rss_mb
 
 
 def environment() -> dict:
@@ -34,7 +35,7 @@ def environment() -> dict:
 
 def _child(fn, args, queue):
     out = fn(*args)
-    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    out["peak_rss_mb"] = peak_rss_mb()
     queue.put(out)
 
 

@@ -71,7 +71,7 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
              f"{wall_seconds:.1f} s (cached stages: {', '.join(sorted(set(frame['cached'])))}). PSNR/SSIM/LPIPS "
              "without a prefix are the pseudo-label protocol (the paper's); held-out = true renders away from the "
              "panorama centre. Seconds and peak MB are those of the process that computed each stage.", "",
-             f"## Averaged over scenes", "", markdown_table(average_table(frame), " / ".join(suite.row_columns)), ""]
+             "## Averaged over scenes", "", markdown_table(average_table(frame), " / ".join(suite.row_columns)), ""]
     notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]

@@ -1,4 +1,5 @@
-"""Checked, atomic file I/O shared by every layer: images, arrays, JSON."""
+"""Checked, atomic file I/O shared by every layer: images, arrays, JSON; and the process's peak memory."""
 from .files import atomic_write, read_image, write_image, save_npy, write_json, PanoreconInputError
+from .process import peak_rss_mb
 
-__all__ = ["atomic_write", "read_image", "write_image", "save_npy", "write_json", "PanoreconInputError"]
+__all__ = ["atomic_write", "read_image", "write_image", "save_npy", "write_json", "PanoreconInputError", "peak_rss_mb"]

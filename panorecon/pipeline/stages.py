@@ -10,13 +10,12 @@ Each stage records its seconds and the peak resident memory of the process that 
 from __future__ import annotations
 
 import dataclasses
-import resource
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..io import write_json
+from ..io import peak_rss_mb, write_json
 from .cache import StageCache, stage_key
 
 POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
@@ -83,10 +82,6 @@ def load_row_scene(name: str, width: int, cache: StageCache):
     return scene_from_image(png, width, name=name, description=f"generated from {name!r} by {model}")
 
 
-def _peak_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def teacher_depth_fn(scene, teacher_spec: str | None):
     """cameras -> list of z-like depth maps from the teacher, for the trainer's Pearson term (scale and shift do
     not matter to it; disparity is inverted), or None without a teacher."""
@@ -123,13 +118,13 @@ def run_points(cache: StageCache, row: Row, key: str | None = None) -> dict:
         if not str(e).startswith("n/a"):
             raise
         record = {"stage": "points", "key": key, "unavailable": str(e), "scene_seconds": scene_s,
-                  "seconds": time.perf_counter() - t, "peak_rss_mb": _peak_mb()}
+                  "seconds": time.perf_counter() - t, "peak_rss_mb": peak_rss_mb()}
         return {**cache.finish("points", key, record), "cached": False}
     folder = cache.folder("points", key)
     pc.save_ply(folder / "cloud.ply")
     write_json(folder / "report.json", report)
     record = {"stage": "points", "key": key, "report": report, "scene_seconds": scene_s,
-              "seconds": report["seconds"]["total"], "peak_rss_mb": _peak_mb(), "points": len(pc)}
+              "seconds": report["seconds"]["total"], "peak_rss_mb": peak_rss_mb(), "points": len(pc)}
     return {**cache.finish("points", key, record), "cached": False}
 
 
@@ -151,5 +146,5 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
                     teacher_depth_fn(scene, row.teacher), progress=progress)
     record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
-              "peak_rss_mb": _peak_mb()}
+              "peak_rss_mb": peak_rss_mb()}
     return {**cache.finish("train", key, record), "cached": False}

@@ -2,20 +2,15 @@
 from __future__ import annotations
 
 import math
-import resource
 import time
 
 import numpy as np
 
+from ..io import peak_rss_mb
 from ..metrics import depth_metrics, point_metrics
 from ..teachers import get_teacher
 from ..teachers.base import true_view_distance
 from .registry import get_source
-
-
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process so far (MB; Linux reports ru_maxrss in KiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _per_view_abs_rel(scene, view_depths) -> float:

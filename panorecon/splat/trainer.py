@@ -5,8 +5,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
-import resource
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..io import atomic_write, write_image, write_json
+from ..io import atomic_write, peak_rss_mb, write_image, write_json
 from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .labels import LabelView, make_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
@@ -167,7 +165,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
                 write_image(out / "renders" / f"{name}_{k}.png", (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8))
     seconds["total"] = time.perf_counter() - t0
     metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), backend=backend, strategy=cfg.strategy,
-                   peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, history=history,
+                   peak_rss_mb=peak_rss_mb(), history=history,
                    config=dataclasses.asdict(cfg))
     write_json(out / "metrics.json", metrics)
     ckpt.unlink(missing_ok=True)

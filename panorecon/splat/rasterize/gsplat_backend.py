@@ -15,7 +15,7 @@ def available() -> bool:
     if not torch.cuda.is_available():
         return False
     try:
-        import gsplat  # noqa: F401
+        import gsplat  # noqa: F401  (the check is whether it imports)
     except ImportError:
         return False
     return True
