@@ -124,11 +124,8 @@ def cmd_sources_list(args) -> int:
 def _initial_cloud(args, scene, cloud_path, report_path):
     """Run the point source, write its cloud (and report) and print one summary line -> (PointCloud, report)."""
     from .io import write_json
-    from .sources import get_source, run_source
+    from .sources import run_source
 
-    spec = get_source(args.source)
-    if spec.uses_teacher and not args.teacher:
-        raise PanoreconInputError(f"source {args.source!r} needs --teacher (see `panorecon teachers list`)")
     pc, report = run_source(scene, args.source, args.teacher, args.views, view_size=getattr(args, "view_size", None))
     pc.save_ply(cloud_path)
     if report_path:

@@ -134,11 +134,8 @@ def add_export_parser(subparsers) -> None:
 def run_export(args) -> int:
     """Build the cloud with ``run_source`` and export it with the labels; print one summary line -> 0."""
     from .scenes import load_scene
-    from .sources import get_source, run_source
+    from .sources import run_source
 
-    spec = get_source(args.source)
-    if spec.uses_teacher and not args.teacher:
-        raise PanoreconInputError(f"source {args.source!r} needs --teacher (see `panorecon teachers list`)")
     scene = load_scene(args.scene, args.width)
     cloud, report = run_source(scene, args.source, args.teacher, args.views)
     out = export_scene(scene, cloud, args.labels, args.format, args.out, args.res, args.fov, args.image_format,

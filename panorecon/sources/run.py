@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from ..io import peak_rss_mb
+from ..io import PanoreconInputError, peak_rss_mb
 from ..metrics import depth_metrics, point_metrics
 from ..teachers import get_teacher
 from ..teachers.base import true_view_distance
@@ -53,9 +53,9 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     metrics) or 'n/a: <reason>', and the median per-view teacher AbsRel."""
     t_total = time.perf_counter()
     spec = get_source(source_name)
+    if spec.uses_teacher and not teacher_spec:
+        raise PanoreconInputError(f"source {source_name!r} needs --teacher (see `panorecon teachers list`)")
     teacher = get_teacher(teacher_spec) if spec.uses_teacher else None
-    if spec.uses_teacher and teacher is None:
-        raise ValueError(f"source {source_name!r} needs a teacher")
     pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size)
     t = time.perf_counter()
     report = {"source": source_name, "teacher": teacher.name if teacher else None, "scene": scene.name,
