@@ -86,13 +86,14 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
     tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
     points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
     _run_tasks(_points_task, list(points_todo.values()), str(cache.root), jobs, engine, scheduler, "points", progress)
-    unavailable = {t[1] for t in tasks if "unavailable" in (cache.done("points", t[1]) or {})}
-    train_todo = {t[2]: t for t in tasks if t[2] is not None and t[1] not in unavailable
+    points_done = {t[1]: cache.done("points", t[1]) for t in tasks}
+    train_todo = {t[2]: t for t in tasks if t[2] is not None and "unavailable" not in points_done[t[1]]
                   and cache.done("train", t[2]) is None}
     _run_tasks(_train_task, list(train_todo.values()), str(cache.root), jobs, engine, scheduler, "train", progress)
     env = environment()
-    frame = pd.DataFrame([result_row(cache, *t, env, t[1] not in points_todo, t[2] is not None and t[2] not in train_todo)
-                          for t in tasks])
+    frame = pd.DataFrame([result_row(row, points_done[pk], cache.done("train", tk) if tk else None, env,
+                                     pk not in points_todo, tk is not None and tk not in train_todo)
+                          for row, pk, tk in tasks])
     with atomic_write(out / "results.csv") as tmp:
         frame.to_csv(tmp, index=False)
     from .report import write_plots, write_results_md
@@ -107,11 +108,10 @@ def _num(v):
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
 
 
-def result_row(cache: StageCache, row: Row, points_key: str, train_key: str | None, env: dict, points_cached: bool,
-               train_cached: bool) -> dict:
-    """One results.csv row: the row's settings, every metric with its protocol, seconds per stage, peak memory,
-    versions, commit, and which stages came from the cache."""
-    pts = cache.done("points", points_key)
+def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: bool, train_cached: bool) -> dict:
+    """One results.csv row from the finished stages' records (points ``pts``, training ``tr``): the row's
+    settings, every metric with its protocol, seconds per stage, peak memory, versions, commit, and which
+    stages came from the cache."""
     if "unavailable" in pts:
         return {"label": row.label, "scene": row.scene, "width": row.width, "source": row.source,
                 "teacher": row.teacher, **row.extra, "unavailable_note": pts["unavailable"], "cached": "none",
@@ -130,8 +130,7 @@ def result_row(cache: StageCache, row: Row, points_key: str, train_key: str | No
         if stage != "total":
             rec[f"sec_points_{stage}"] = sec
     seconds_total, peak = pts["seconds"], pts["peak_rss_mb"]
-    if row.train is not None:
-        tr = cache.done("train", train_key)
+    if tr is not None:
         m = tr["metrics"]
         for proto, tag in (("pseudo-label", "pl"), ("held-out", "ho")):
             block = m.get(proto)

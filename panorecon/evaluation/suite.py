@@ -62,7 +62,8 @@ def load_suite(path) -> Suite:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as e:
         raise PanoreconInputError(f"suite {path}: not valid TOML ({e})") from None
-    allowed = ROW_KEYS | _train_fields()
+    train_fields = _train_fields()
+    allowed = ROW_KEYS | train_fields
     defaults, grid, variants = data.get("defaults", {}), data.get("grid", {}), data.get("variants", [{}])
     for where, keys in [("[defaults]", defaults), ("[grid]", grid)] + [(f"[[variants]] {i + 1}", v) for i, v in enumerate(variants)]:
         unknown = set(keys) - allowed
@@ -72,7 +73,6 @@ def load_suite(path) -> Suite:
         if not isinstance(v, list) or not v:
             raise PanoreconInputError(f"suite {path}: [grid] {k} must be a non-empty list, got {v!r}")
     row_columns = list(data.get("rows", ["source"]))
-    train_fields = _train_fields()
     rows = []
     for variant in variants:
         for combo in itertools.product(*grid.values()):
