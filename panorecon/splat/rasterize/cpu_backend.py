@@ -1,7 +1,8 @@
 """The ``cpu`` backend: tiled compositing in C++ (csrc/rasterize_cpu.cpp) with a hand-written backward,
 parallel over tiles through ATen's thread pool (OpenMP). Built with torch.utils.cpp_extension on first use
 (or ahead of time by ``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions``
-(default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable. Float32.
+(default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the two hot
+functions are built twice (AVX2 and baseline x86-64) and the loader picks by CPU. Float32.
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def load(verbose: bool = False):
         from torch.utils.cpp_extension import load as load_ext
 
         _module = load_ext(name="panorecon_rasterize_cpu", sources=[str(_SOURCE)], build_directory=str(build_dir()),
-                           extra_cflags=["-O3", "-fopenmp"], extra_ldflags=["-fopenmp"], verbose=verbose)
+                           extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"], extra_ldflags=["-fopenmp"], verbose=verbose)
     except Exception as e:  # a missing compiler or headers: fall back to the reference
         _error = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
         log.warning("cpu rasterizer unavailable (%s); the torch reference backend runs instead", _error)

@@ -1,7 +1,10 @@
 // Tiled Gaussian compositing on the CPU: forward and hand-written backward, parallel over tiles.
 // Same rules as the PyTorch reference (torch_backend.py): pixel centres at +0.5; alpha = min(0.99, o exp(-sigma));
 // alpha < 1/255 or sigma < 0 skipped; stop before the Gaussian that would take T to <= 1e-4.
-// Float32 throughout. Gradients are accumulated in one buffer per thread and summed at the end.
+// Layout of the work: Gaussians are binned to 16x16 tiles (counting sort, then depth sort per tile); a tile's
+// Gaussians are gathered into contiguous arrays; each 4x4 block of pixels gets the sub-list whose alpha cutoff
+// disc reaches it, and its 16 pixels are composited in lockstep as two 8-float vectors.
+// Float32 throughout. Gradients are summed per tile, then into one buffer per thread, then across threads.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 #include <algorithm>
@@ -18,40 +21,75 @@ struct Bins {
   std::vector<int32_t> ids;      // Gaussian ids, per tile front to back
 };
 
+// Calls fn(tile index within camera c) for every tile the Gaussian's square [m - r, m + r] touches
+// (the reference's test: the square overlaps [t, t + size] on both axes).
+template <typename Fn>
+inline void for_each_tile(float mx, float my, int32_t r, int64_t W, int64_t H, int64_t tile, Fn fn) {
+  const int64_t tx_n = (W + tile - 1) / tile, ty_n = (H + tile - 1) / tile;
+  const int64_t x0 = std::max<int64_t>(0, (int64_t)std::floor((mx - r) / tile));
+  const int64_t x1 = std::min<int64_t>(tx_n - 1, (int64_t)std::floor((mx + r) / tile));
+  const int64_t y0 = std::max<int64_t>(0, (int64_t)std::floor((my - r) / tile));
+  const int64_t y1 = std::min<int64_t>(ty_n - 1, (int64_t)std::floor((my + r) / tile));
+  for (int64_t ty = y0; ty <= y1; ++ty)
+    for (int64_t tx = x0; tx <= x1; ++tx) {
+      const float left = tx * tile, right = std::min<int64_t>(W, (tx + 1) * tile);
+      const float top = ty * tile, bottom = std::min<int64_t>(H, (ty + 1) * tile);
+      if (mx + r >= left && mx - r <= right && my + r >= top && my - r <= bottom) fn(ty * tx_n + tx);
+    }
+}
+
+// Counting sort of (camera, tile) hits in parallel: the Gaussians are cut into fixed chunks, each chunk counts
+// its hits per tile, a prefix sum over (tile, chunk) gives every chunk its write position, and a second pass
+// writes the ids. Within a tile the ids come out ascending, whatever the thread count; then each tile is
+// stable-sorted by depth (ties keep the id order, as in the reference's stable argsort).
 Bins bin(const float* m2d, const float* depth, const int32_t* radii, int64_t C, int64_t N, int64_t W, int64_t H,
          int64_t tile) {
-  const int64_t tx_n = (W + tile - 1) / tile, ty_n = (H + tile - 1) / tile, tiles = tx_n * ty_n;
-  std::vector<std::vector<int32_t>> lists(C * tiles);
-  for (int64_t c = 0; c < C; ++c) {
-    for (int64_t n = 0; n < N; ++n) {
-      const int32_t r = radii[c * N + n];
-      if (r <= 0) continue;
-      const float mx = m2d[(c * N + n) * 2], my = m2d[(c * N + n) * 2 + 1];
-      // the same touch test as the reference: [m - r, m + r] overlaps [t, t + size]
-      int64_t x0 = std::max<int64_t>(0, (int64_t)std::floor((mx - r) / tile));
-      int64_t x1 = std::min<int64_t>(tx_n - 1, (int64_t)std::floor((mx + r) / tile));
-      int64_t y0 = std::max<int64_t>(0, (int64_t)std::floor((my - r) / tile));
-      int64_t y1 = std::min<int64_t>(ty_n - 1, (int64_t)std::floor((my + r) / tile));
-      for (int64_t ty = y0; ty <= y1; ++ty)
-        for (int64_t tx = x0; tx <= x1; ++tx) {
-          const float left = tx * tile, right = std::min<int64_t>(W, (tx + 1) * tile);
-          const float top = ty * tile, bottom = std::min<int64_t>(H, (ty + 1) * tile);
-          if (mx + r >= left && mx - r <= right && my + r >= top && my - r <= bottom)
-            lists[c * tiles + ty * tx_n + tx].push_back((int32_t)n);
+  const int64_t tiles = ((W + tile - 1) / tile) * ((H + tile - 1) / tile), CT = C * tiles, CN = C * N;
+  const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(64, CN / 4096)), len = (CN + chunks - 1) / chunks;
+  std::vector<int64_t> pos(chunks * CT, 0);  // counts, then write positions, per (chunk, tile)
+  auto sweep = [&](bool write, int32_t* ids) {
+    at::parallel_for(0, chunks, 1, [&](int64_t b, int64_t e) {
+      for (int64_t k = b; k < e; ++k) {
+        int64_t* p = pos.data() + k * CT;
+        for (int64_t cn = k * len; cn < std::min(CN, (k + 1) * len); ++cn) {
+          const int32_t r = radii[cn];
+          if (r <= 0) continue;
+          const int64_t base = (cn / N) * tiles;
+          for_each_tile(m2d[cn * 2], m2d[cn * 2 + 1], r, W, H, tile, [&](int64_t t) {
+            if (write) ids[p[base + t]++] = (int32_t)(cn % N);
+            else ++p[base + t];
+          });
         }
+      }
+    });
+  };
+  sweep(false, nullptr);
+  Bins out;
+  out.offsets.assign(CT + 1, 0);
+  int64_t run = 0;
+  for (int64_t t = 0; t < CT; ++t) {
+    out.offsets[t] = run;
+    for (int64_t k = 0; k < chunks; ++k) {
+      const int64_t count = pos[k * CT + t];
+      pos[k * CT + t] = run;
+      run += count;
     }
   }
-  at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
+  out.offsets[CT] = run;
+  out.ids.resize(run);
+  sweep(true, out.ids.data());
+  at::parallel_for(0, CT, 1, [&](int64_t b, int64_t e) {
+    std::vector<std::pair<float, int32_t>> keyed;
     for (int64_t t = b; t < e; ++t) {
       const float* dz = depth + (t / tiles) * N;
-      std::stable_sort(lists[t].begin(), lists[t].end(), [dz](int32_t a, int32_t b2) { return dz[a] < dz[b2]; });
+      int32_t* first = out.ids.data() + out.offsets[t];
+      const int64_t n = out.offsets[t + 1] - out.offsets[t];
+      keyed.resize(n);
+      for (int64_t k = 0; k < n; ++k) keyed[k] = {dz[first[k]], first[k]};
+      std::stable_sort(keyed.begin(), keyed.end(), [](const auto& a, const auto& b2) { return a.first < b2.first; });
+      for (int64_t k = 0; k < n; ++k) first[k] = keyed[k].second;
     }
   });
-  Bins out;
-  out.offsets.resize(C * tiles + 1, 0);
-  for (int64_t t = 0; t < C * tiles; ++t) out.offsets[t + 1] = out.offsets[t] + (int64_t)lists[t].size();
-  out.ids.resize(out.offsets.back());
-  for (int64_t t = 0; t < C * tiles; ++t) std::copy(lists[t].begin(), lists[t].end(), out.ids.begin() + out.offsets[t]);
   return out;
 }
 
@@ -75,24 +113,211 @@ std::vector<float> cutoffs(const float* con, const float* op, int64_t C, int64_t
 
 constexpr int64_t BLOCK = 4;  // pixels per side of the sub-tile blocks that pre-filter a tile's list
 
-// The tile's depth-ordered ids whose cutoff disc reaches the block of pixel centres [x0, x1] x [y0, y1].
-void block_list(const int32_t* ids, int64_t n_ids, const float* m2d, const float* cut, int64_t c, int64_t N, float x0,
-                float x1, float y0, float y1, std::vector<int32_t>& out) {
-  out.clear();
-  for (int64_t k = 0; k < n_ids; ++k) {
-    const int64_t cn = c * N + ids[k];
-    const float mx = m2d[cn * 2], my = m2d[cn * 2 + 1];
-    const float dx = std::max(std::max(x0 - mx, mx - x1), 0.f), dy = std::max(std::max(y0 - my, my - y1), 0.f);
-    if (dx * dx + dy * dy <= cut[cn]) out.push_back(ids[k]);
+// The kernel's read-only inputs, [C, N, ...] contiguous float32.
+struct Inputs {
+  const float *m2d, *con, *col, *op, *dz, *cut;
+  int64_t N;
+};
+
+// One tile's Gaussians, front to back, copied into contiguous arrays so that the per-pixel loops stream through
+// a few kilobytes instead of gathering from the [C, N] inputs.
+struct TileGaussians {
+  std::vector<int32_t> id;
+  std::vector<float> mx, my, cut, qa, qb, qc, op, r, g, b, z;
+  void gather(const int32_t* ids, int64_t n, int64_t c, const Inputs& in) {
+    for (auto* v : {&mx, &my, &cut, &qa, &qb, &qc, &op, &r, &g, &b, &z}) v->resize(n);
+    id.assign(ids, ids + n);
+    for (int64_t k = 0; k < n; ++k) {
+      const int64_t cn = c * in.N + ids[k];
+      mx[k] = in.m2d[cn * 2]; my[k] = in.m2d[cn * 2 + 1]; cut[k] = in.cut[cn];
+      qa[k] = in.con[cn * 3]; qb[k] = in.con[cn * 3 + 1]; qc[k] = in.con[cn * 3 + 2];
+      op[k] = in.op[ids[k]];
+      r[k] = in.col[cn * 3]; g[k] = in.col[cn * 3 + 1]; b[k] = in.col[cn * 3 + 2]; z[k] = in.dz[cn];
+    }
+  }
+  // positions (into this tile's arrays) of the Gaussians whose cutoff disc reaches the block of pixel centres
+  // [x0, x1] x [y0, y1], front to back
+  void block_list(float x0, float x1, float y0, float y1, std::vector<int32_t>& out) const {
+    out.clear();
+    for (int64_t k = 0; k < (int64_t)id.size(); ++k) {
+      const float dx = std::max(std::max(x0 - mx[k], mx[k] - x1), 0.f);
+      const float dy = std::max(std::max(y0 - my[k], my[k] - y1), 0.f);
+      if (dx * dx + dy * dy <= cut[k]) out.push_back((int32_t)k);
+    }
+  }
+};
+
+// The pixels of a BLOCK x BLOCK block are composited in lockstep as VECS vectors of 8 floats (GCC/Clang vector
+// extensions: AVX2 registers in the avx2 clone, pairs of SSE registers in the default one).
+typedef float v8f __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+constexpr int LANES = BLOCK * BLOCK, VECS = LANES / 8;
+static_assert(LANES % 8 == 0, "a block must fill whole vectors");
+
+#define PR_INLINE inline __attribute__((always_inline))
+#if defined(__x86_64__) && defined(__GNUC__)
+#define PR_CLONES __attribute__((target_clones("avx2", "default")))  // the loader picks by CPU
+#else
+#define PR_CLONES
+#endif
+PR_INLINE v8f select(v8i mask, v8f a, v8f b) { return mask ? a : b; }
+PR_INLINE v8f vmin(v8f a, v8f b) { return a < b ? a : b; }
+PR_INLINE v8f vmax(v8f a, v8f b) { return a > b ? a : b; }
+PR_INLINE float hsum(v8f v) { return ((v[0] + v[4]) + (v[1] + v[5])) + ((v[2] + v[6]) + (v[3] + v[7])); }
+PR_INLINE float hmax(v8f v) {
+  return std::max(std::max(std::max(v[0], v[4]), std::max(v[1], v[5])), std::max(std::max(v[2], v[6]), std::max(v[3], v[7])));
+}
+PR_INLINE bool any_set(v8i m) { return (m[0] | m[1] | m[2] | m[3] | m[4] | m[5] | m[6] | m[7]) != 0; }
+
+// exp(-s) per lane for s >= 0: Cephes' expf (range reduction by ln 2 in two parts, degree-6 polynomial,
+// exponent bits); relative error below 2e-7. s is clamped to [0, 40]: exp(-40) is far below any alpha that counts
+// (1/255), and the clamp keeps o * exp(-s) out of the denormals, which cost ~100x.
+PR_INLINE v8f exp_neg(v8f s) {
+  const v8f zero = {}, forty = zero + 40.f;
+  s = vmin(vmax(s, zero), forty);
+  const v8i n_i = __builtin_convertvector(s * 1.44269504f + 0.5f, v8i);  // round(s / ln 2), s >= 0
+  const v8f n = __builtin_convertvector(n_i, v8f);
+  const v8f x = (n * 0.693359375f - s) + n * -2.12194440e-4f;  // n ln 2 - s, in [-ln2/2, ln2/2]
+  v8f y = zero + 1.9875691500e-4f;
+  y = y * x + 1.3981999507e-3f;
+  y = y * x + 8.3334519073e-3f;
+  y = y * x + 4.1665795894e-2f;
+  y = y * x + 1.6666665459e-1f;
+  y = y * x + 5.0000001201e-1f;
+  y = y * x * x + x + 1.f;
+  return y * (v8f)((127 - n_i) << 23);  // times 2^-n
+}
+
+// Lane p of a block is pixel (i0 + p / BLOCK, j0 + p % BLOCK); pixel centres at +0.5.
+PR_INLINE void lane_centres(int64_t i0, int64_t j0, v8f* px, v8f* py) {
+  for (int p = 0; p < LANES; ++p) {
+    px[p / 8][p % 8] = j0 + p % BLOCK + 0.5f;
+    py[p / 8][p % 8] = i0 + p / BLOCK + 0.5f;
   }
 }
 
-inline bool alpha_at(const float* con, float dx, float dy, float o, float& alpha, float& vis) {
-  const float sigma = 0.5f * (con[0] * dx * dx + con[2] * dy * dy) + con[1] * dx * dy;
-  if (sigma < 0.f) return false;
-  vis = std::exp(-sigma);
-  alpha = std::min(ALPHA_MAX, o * vis);
-  return alpha >= ALPHA_MIN;
+struct BlockOut {  // per lane: transmittance, rgb, accumulated z, entries of the block list composited
+  v8f T[VECS], r[VECS], g[VECS], b[VECS], d[VECS], end[VECS];
+};
+
+// Composites one block's list front to back, all lanes at once; a lane stops before the Gaussian that would take
+// its T to <= T_MIN, lanes outside the image start stopped. With contrib, adds this block's weight sum / max and
+// max T per Gaussian to contrib [3, CN] at cbase + id.
+PR_CLONES
+void composite_block(const TileGaussians& G, const int32_t* list, int64_t n_l, int64_t i0, int64_t i1, int64_t j0,
+                     int64_t j1, BlockOut& out, float* contrib, int64_t CN, int64_t cbase) {
+  v8f px[VECS], py[VECS], T[VECS], r[VECS], g[VECS], b[VECS], d[VECS], end[VECS];
+  v8i live[VECS];
+  lane_centres(i0, j0, px, py);
+  const v8f zero = {};
+  for (int v = 0; v < VECS; ++v) {
+    T[v] = zero + 1.f;
+    r[v] = g[v] = b[v] = d[v] = end[v] = zero;
+    live[v] = (px[v] < (float)j1) & (py[v] < (float)i1);
+  }
+  for (int64_t k = 0; k < n_l; ++k) {
+    const int64_t l = list[k];
+    const float mx = G.mx[l], my = G.my[l], qa = G.qa[l], qb = G.qb[l], qc = G.qc[l], o = G.op[l];
+    const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], k1 = (float)(k + 1);
+    v8f w_sum = zero, w_max = zero, t_max = zero;
+    v8i alive = {};
+    for (int v = 0; v < VECS; ++v) {
+      const v8f dx = px[v] - mx, dy = py[v] - my;
+      const v8f sigma = 0.5f * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
+      const v8f a = vmin(zero + ALPHA_MAX, o * exp_neg(sigma));
+      const v8f nextT = T[v] * (1.f - a);
+      const v8i use = live[v] & (sigma >= 0.f) & (a >= ALPHA_MIN);
+      const v8i stop = use & (nextT <= T_MIN);
+      const v8i add = use & ~stop;
+      const v8f w = select(add, a * T[v], zero);
+      t_max = vmax(t_max, select(add, T[v], zero));
+      r[v] += w * cr; g[v] += w * cg; b[v] += w * cb; d[v] += w * cz;
+      T[v] = select(add, nextT, T[v]);
+      end[v] = select(add, zero + k1, end[v]);
+      live[v] &= ~stop;
+      alive |= live[v];
+      w_sum += w;
+      w_max = vmax(w_max, w);
+    }
+    if (contrib) {
+      const float ws = hsum(w_sum);
+      if (ws > 0.f) {
+        const int64_t cn = cbase + G.id[l];
+        contrib[cn] += ws;
+        contrib[CN + cn] = std::max(contrib[CN + cn], hmax(w_max));
+        contrib[2 * CN + cn] = std::max(contrib[2 * CN + cn], hmax(t_max));
+      }
+    }
+    if (!any_set(alive)) break;
+  }
+  for (int v = 0; v < VECS; ++v) {
+    out.T[v] = T[v]; out.r[v] = r[v]; out.g[v] = g[v]; out.b[v] = b[v]; out.d[v] = d[v]; out.end[v] = end[v];
+  }
+}
+
+struct BlockGrad {  // per lane: dL/d(rgb, z, alpha) of the pixel, its final T and list end (0 outside the image)
+  v8f gr[VECS], gg[VECS], gb[VECS], gz[VECS], ga[VECS], T_end[VECS], end[VECS];
+};
+
+// The backward of composite_block: walks the block's list back to front from the largest end (a lane joins once
+// k < its end), recovering the transmittance in front of each Gaussian as T / (1 - alpha), and adds the block's
+// gradients to grad (10 per tile Gaussian: means2d x y, conic a b c, rgb, z, opacity).
+PR_CLONES
+void composite_block_backward(const TileGaussians& G, const int32_t* list, int64_t i0, int64_t j0,
+                              const BlockGrad& in, float* grad) {
+  v8f px[VECS], py[VECS], T[VECS], Sr[VECS], Sg[VECS], Sb[VECS], Sd[VECS];
+  lane_centres(i0, j0, px, py);
+  const v8f zero = {};
+  float k_max = 0.f;
+  for (int v = 0; v < VECS; ++v) {
+    T[v] = in.T_end[v];
+    Sr[v] = Sg[v] = Sb[v] = Sd[v] = zero;
+    k_max = std::max(k_max, hmax(in.end[v]));
+  }
+  for (int64_t k = (int64_t)k_max - 1; k >= 0; --k) {
+    const int64_t l = list[k];
+    const float mx = G.mx[l], my = G.my[l], qa = G.qa[l], qb = G.qb[l], qc = G.qc[l], o = G.op[l];
+    const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], kf = (float)k;
+    v8f g_mx = zero, g_my = zero, g_qa = zero, g_qb = zero, g_qc = zero, g_r = zero, g_g = zero, g_b = zero,
+        g_z = zero, g_o = zero;
+    for (int v = 0; v < VECS; ++v) {
+      const v8f dx = px[v] - mx, dy = py[v] - my;
+      const v8f sigma = 0.5f * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
+      const v8f vis = exp_neg(sigma);
+      const v8f a = vmin(zero + ALPHA_MAX, o * vis);
+      const v8i use = (kf < in.end[v]) & (sigma >= 0.f) & (a >= ALPHA_MIN);
+      const v8f inv = 1.f / (1.f - a);
+      const v8f Tb = T[v] * inv;  // transmittance in front of it
+      const v8f w = select(use, a * Tb, zero);
+      g_r += w * in.gr[v]; g_g += w * in.gg[v]; g_b += w * in.gb[v]; g_z += w * in.gz[v];
+      const v8f g_a = Tb * (cr * in.gr[v] + cg * in.gg[v] + cb * in.gb[v] + cz * in.gz[v])
+                      - (Sr[v] * in.gr[v] + Sg[v] * in.gg[v] + Sb[v] * in.gb[v] + Sd[v] * in.gz[v]) * inv
+                      + in.ga[v] * in.T_end[v] * inv;
+      Sr[v] += w * cr; Sg[v] += w * cg; Sb[v] += w * cb; Sd[v] += w * cz;
+      T[v] = select(use, Tb, T[v]);
+      // a clamped alpha passes no gradient to opacity or shape
+      const v8f g_vis = select(use & (o * vis <= ALPHA_MAX), vis * g_a, zero);
+      g_o += g_vis;
+      const v8f g_sigma = -o * g_vis;
+      g_qa += 0.5f * dx * dx * g_sigma;
+      g_qb += dx * dy * g_sigma;
+      g_qc += 0.5f * dy * dy * g_sigma;
+      g_mx -= (qa * dx + qb * dy) * g_sigma;
+      g_my -= (qb * dx + qc * dy) * g_sigma;
+    }
+    float* q = grad + l * 10;
+    q[0] += hsum(g_mx); q[1] += hsum(g_my); q[2] += hsum(g_qa); q[3] += hsum(g_qb); q[4] += hsum(g_qc);
+    q[5] += hsum(g_r); q[6] += hsum(g_g); q[7] += hsum(g_b); q[8] += hsum(g_z); q[9] += hsum(g_o);
+  }
+}
+
+// Calls fn(i0, i1, j0, j1) for the BLOCK x BLOCK pixel blocks [i0, i1) x [j0, j1) of tile t of a camera.
+template <typename Fn>
+inline void for_each_block(int64_t t, int64_t W, int64_t H, int64_t tile, Fn fn) {
+  const int64_t tx_n = (W + tile - 1) / tile, ty = t / tx_n, tx = t % tx_n;
+  for (int64_t i0 = ty * tile; i0 < std::min<int64_t>(H, (ty + 1) * tile); i0 += BLOCK)
+    for (int64_t j0 = tx * tile; j0 < std::min<int64_t>(W, (tx + 1) * tile); j0 += BLOCK)
+      fn(i0, std::min<int64_t>({H, (ty + 1) * tile, i0 + BLOCK}), j0, std::min<int64_t>({W, (tx + 1) * tile, j0 + BLOCK}));
 }
 }  // namespace
 
@@ -104,70 +329,43 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
                                    torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii, int64_t W,
                                    int64_t H, int64_t tile, bool want_contrib) {
   const int64_t C = means2d.size(0), N = means2d.size(1);
-  const float* m2d = means2d.data_ptr<float>();
-  const float* con = conics.data_ptr<float>();
-  const float* col = colors.data_ptr<float>();
-  const float* op = opacities.data_ptr<float>();
-  const float* dz = depths.data_ptr<float>();
-  Bins bins = bin(m2d, dz, radii.data_ptr<int32_t>(), C, N, W, H, tile);
-  const std::vector<float> cut = cutoffs(con, op, C, N);
+  const Bins bins = bin(means2d.data_ptr<float>(), depths.data_ptr<float>(), radii.data_ptr<int32_t>(), C, N, W, H, tile);
+  const std::vector<float> cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), C, N);
+  const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
+                  opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.data(), N};
   auto f = torch::TensorOptions().dtype(torch::kFloat32);
   auto image = torch::zeros({C, H, W, 3}, f), alpha = torch::zeros({C, H, W, 1}, f), depth = torch::zeros({C, H, W, 1}, f);
   auto T_final = torch::ones({C, H, W}, f);
   auto last = torch::zeros({C, H, W}, torch::TensorOptions().dtype(torch::kInt32));
   float *img = image.data_ptr<float>(), *al = alpha.data_ptr<float>(), *dep = depth.data_ptr<float>(), *Tf = T_final.data_ptr<float>();
   int32_t* ls = last.data_ptr<int32_t>();
-  const int64_t tx_n = (W + tile - 1) / tile, ty_n = (H + tile - 1) / tile, tiles = tx_n * ty_n;
+  const int64_t tiles = ((W + tile - 1) / tile) * ((H + tile - 1) / tile);
   const int64_t n_threads = want_contrib ? at::get_num_threads() : 0;
   // per thread: [weight_sum | weight_max | trans_max] x C*N
   std::vector<float> contrib_buf(n_threads * 3 * C * N, 0.f);
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
     float* cb = want_contrib ? contrib_buf.data() + at::get_thread_num() * 3 * C * N : nullptr;
+    TileGaussians G;
+    std::vector<int32_t> list;
+    BlockOut px;
     for (int64_t t = b; t < e; ++t) {
-      const int64_t c = t / tiles, ty = (t % tiles) / tx_n, tx = (t % tiles) % tx_n;
-      const int64_t s = bins.offsets[t], n_g = bins.offsets[t + 1] - s;
-      std::vector<int32_t> list;
-      for (int64_t bi = ty * tile; bi < std::min<int64_t>(H, (ty + 1) * tile); bi += BLOCK)
-        for (int64_t bj = tx * tile; bj < std::min<int64_t>(W, (tx + 1) * tile); bj += BLOCK) {
-          const int64_t ei = std::min<int64_t>({H, (ty + 1) * tile, bi + BLOCK});
-          const int64_t ej = std::min<int64_t>({W, (tx + 1) * tile, bj + BLOCK});
-          block_list(bins.ids.data() + s, n_g, m2d, cut.data(), c, N, bj + 0.5f, ej - 0.5f, bi + 0.5f, ei - 0.5f, list);
-          const int64_t n_l = (int64_t)list.size();
-          for (int64_t i = bi; i < ei; ++i)
-            for (int64_t j = bj; j < ej; ++j) {
-              const float px = j + 0.5f, py = i + 0.5f;
-              float T = 1.f, r = 0.f, g = 0.f, bl = 0.f, d = 0.f;
-              int32_t end = 0;
-              for (int64_t k = 0; k < n_l; ++k) {
-                const int64_t n = list[k], cn = c * N + n;
-                const float dx = px - m2d[cn * 2], dy = py - m2d[cn * 2 + 1];
-                if (dx * dx + dy * dy > cut[cn]) continue;
-                float a, vis;
-                if (!alpha_at(con + cn * 3, dx, dy, op[n], a, vis)) continue;
-                const float nextT = T * (1.f - a);
-                if (nextT <= T_MIN) break;
-                const float w = a * T;
-                if (cb) {
-                  cb[cn] += w;
-                  cb[C * N + cn] = std::max(cb[C * N + cn], w);
-                  cb[2 * C * N + cn] = std::max(cb[2 * C * N + cn], T);
-                }
-                r += w * col[cn * 3];
-                g += w * col[cn * 3 + 1];
-                bl += w * col[cn * 3 + 2];
-                d += w * dz[cn];
-                T = nextT;
-                end = (int32_t)(k + 1);
-              }
-              const int64_t p = (c * H + i) * W + j;
-              img[p * 3] = r; img[p * 3 + 1] = g; img[p * 3 + 2] = bl;
-              dep[p] = d; al[p] = 1.f - T; Tf[p] = T; ls[p] = end;  // end indexes the block's list
-            }
-        }
+      const int64_t c = t / tiles;
+      G.gather(bins.ids.data() + bins.offsets[t], bins.offsets[t + 1] - bins.offsets[t], c, in);
+      for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
+        G.block_list(j0 + 0.5f, j1 - 0.5f, i0 + 0.5f, i1 - 0.5f, list);
+        composite_block(G, list.data(), (int64_t)list.size(), i0, i1, j0, j1, px, cb, C * N, c * N);
+        for (int64_t i = i0; i < i1; ++i)
+          for (int64_t j = j0; j < j1; ++j) {
+            const int64_t q = (i - i0) * BLOCK + (j - j0), v = q / 8, u = q % 8, p = (c * H + i) * W + j;
+            img[p * 3] = px.r[v][u]; img[p * 3 + 1] = px.g[v][u]; img[p * 3 + 2] = px.b[v][u];
+            dep[p] = px.d[v][u]; al[p] = 1.f - px.T[v][u]; Tf[p] = px.T[v][u];
+            ls[p] = (int32_t)px.end[v][u];  // end indexes the block's list
+          }
+      });
     }
   });
-  auto offsets = torch::from_blob(bins.offsets.data(), {(int64_t)bins.offsets.size()}, torch::kInt64).clone();
-  auto ids = torch::from_blob(bins.ids.data(), {(int64_t)bins.ids.size()}, torch::kInt32).clone();
+  auto offsets = torch::from_blob((void*)bins.offsets.data(), {(int64_t)bins.offsets.size()}, torch::kInt64).clone();
+  auto ids = torch::from_blob((void*)bins.ids.data(), {(int64_t)bins.ids.size()}, torch::kInt32).clone();
   auto w_sum = torch::zeros({want_contrib ? C : 0, N}, f), w_max = torch::zeros({want_contrib ? C : 0, N}, f),
        t_max = torch::zeros({want_contrib ? C : 0, N}, f);
   float *ws = w_sum.data_ptr<float>(), *wm = w_max.data_ptr<float>(), *tm = t_max.data_ptr<float>();
@@ -188,65 +386,51 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
                                     torch::Tensor last, torch::Tensor offsets, torch::Tensor ids, torch::Tensor g_image,
                                     torch::Tensor g_alpha, torch::Tensor g_depth, int64_t W, int64_t H, int64_t tile) {
   const int64_t C = means2d.size(0), N = means2d.size(1);
-  const float *m2d = means2d.data_ptr<float>(), *con = conics.data_ptr<float>(), *col = colors.data_ptr<float>();
-  const float *op = opacities.data_ptr<float>(), *dz = depths.data_ptr<float>(), *Tf = T_final.data_ptr<float>();
+  const float* Tf = T_final.data_ptr<float>();
   const int32_t* ls = last.data_ptr<int32_t>();
   const int64_t* off = offsets.data_ptr<int64_t>();
   const int32_t* gid = ids.data_ptr<int32_t>();
   const float *gi = g_image.data_ptr<float>(), *ga = g_alpha.data_ptr<float>(), *gd = g_depth.data_ptr<float>();
-  const std::vector<float> cut = cutoffs(con, op, C, N);
+  const std::vector<float> cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), C, N);
+  const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
+                  opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.data(), N};
   const int64_t threads = at::get_num_threads();
   // per thread: means2d 2, conics 3, colors 3, depth 1 per (c, n); opacity 1 per n
   const int64_t stride = C * N * 9 + N;
   std::vector<float> buf(threads * stride, 0.f);
-  const int64_t tx_n = (W + tile - 1) / tile, ty_n = (H + tile - 1) / tile, tiles = tx_n * ty_n;
+  const int64_t tiles = ((W + tile - 1) / tile) * ((H + tile - 1) / tile);
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
     float* acc = buf.data() + at::get_thread_num() * stride;
     float *gm = acc, *gc = acc + C * N * 2, *gcol = acc + C * N * 5, *gz = acc + C * N * 8, *go = acc + C * N * 9;
+    TileGaussians G;
+    std::vector<int32_t> list;
+    BlockGrad px;
+    std::vector<float> grad;  // this tile's gradients, 10 per Gaussian: m2d x y, conic a b c, rgb, z, opacity
     for (int64_t t = b; t < e; ++t) {
-      const int64_t c = t / tiles, ty = (t % tiles) / tx_n, tx = (t % tiles) % tx_n;
-      const int64_t s = off[t], n_g = off[t + 1] - s;
-      std::vector<int32_t> list;
-      for (int64_t bi = ty * tile; bi < std::min<int64_t>(H, (ty + 1) * tile); bi += BLOCK)
-        for (int64_t bj = tx * tile; bj < std::min<int64_t>(W, (tx + 1) * tile); bj += BLOCK) {
-          const int64_t ei = std::min<int64_t>({H, (ty + 1) * tile, bi + BLOCK});
-          const int64_t ej = std::min<int64_t>({W, (tx + 1) * tile, bj + BLOCK});
-          block_list(gid + s, n_g, m2d, cut.data(), c, N, bj + 0.5f, ej - 0.5f, bi + 0.5f, ei - 0.5f, list);
-          for (int64_t i = bi; i < ei; ++i)
-            for (int64_t j = bj; j < ej; ++j) {
-              const int64_t p = (c * H + i) * W + j;
-              const float px = j + 0.5f, py = i + 0.5f;
-              const float gr = gi[p * 3], gg = gi[p * 3 + 1], gb = gi[p * 3 + 2], gdp = gd[p], gal = ga[p];
-              const float T_end = Tf[p];
-              float T = T_end;                              // transmittance after the current Gaussian
-              float Sr = 0.f, Sg = 0.f, Sb = 0.f, Sd = 0.f;  // what lies behind it
-              for (int64_t k = (int64_t)ls[p] - 1; k >= 0; --k) {
-                const int64_t n = list[k], cn = c * N + n;
-                const float* q = con + cn * 3;
-                const float dx = px - m2d[cn * 2], dy = py - m2d[cn * 2 + 1];
-                if (dx * dx + dy * dy > cut[cn]) continue;
-                float a, vis;
-                if (!alpha_at(q, dx, dy, op[n], a, vis)) continue;
-                const float Tb = T / (1.f - a);  // transmittance before it
-                const float w = a * Tb;
-                const float* cc = col + cn * 3;
-                gcol[cn * 3] += w * gr; gcol[cn * 3 + 1] += w * gg; gcol[cn * 3 + 2] += w * gb;
-                gz[cn] += w * gdp;
-                const float g_a = Tb * (cc[0] * gr + cc[1] * gg + cc[2] * gb + dz[cn] * gdp)
-                                  - (Sr * gr + Sg * gg + Sb * gb + Sd * gdp) / (1.f - a) + gal * T_end / (1.f - a);
-                Sr += w * cc[0]; Sg += w * cc[1]; Sb += w * cc[2]; Sd += w * dz[cn];
-                T = Tb;
-                if (op[n] * vis > ALPHA_MAX) continue;  // clamped alpha: no gradient to opacity or shape
-                go[n] += vis * g_a;
-                const float g_sigma = -op[n] * vis * g_a;
-                gc[cn * 3] += 0.5f * dx * dx * g_sigma;
-                gc[cn * 3 + 1] += dx * dy * g_sigma;
-                gc[cn * 3 + 2] += 0.5f * dy * dy * g_sigma;
-                gm[cn * 2] += -(q[0] * dx + q[1] * dy) * g_sigma;
-                gm[cn * 2 + 1] += -(q[1] * dx + q[2] * dy) * g_sigma;
-              }
-            }
+      const int64_t c = t / tiles;
+      const int64_t n_g = off[t + 1] - off[t];
+      G.gather(gid + off[t], n_g, c, in);
+      grad.assign(n_g * 10, 0.f);
+      for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
+        G.block_list(j0 + 0.5f, j1 - 0.5f, i0 + 0.5f, i1 - 0.5f, list);
+        for (int64_t q = 0; q < LANES; ++q) {
+          const int64_t i = i0 + q / BLOCK, j = j0 + q % BLOCK, p = (c * H + i) * W + j, v = q / 8, u = q % 8;
+          const bool inside = i < i1 && j < j1;
+          px.gr[v][u] = inside ? gi[p * 3] : 0.f; px.gg[v][u] = inside ? gi[p * 3 + 1] : 0.f;
+          px.gb[v][u] = inside ? gi[p * 3 + 2] : 0.f; px.gz[v][u] = inside ? gd[p] : 0.f;
+          px.ga[v][u] = inside ? ga[p] : 0.f; px.T_end[v][u] = inside ? Tf[p] : 1.f;
+          px.end[v][u] = inside ? (float)ls[p] : 0.f;
         }
+        composite_block_backward(G, list.data(), i0, j0, px, grad.data());
+      });
+      for (int64_t l = 0; l < n_g; ++l) {  // one scatter per tile into this thread's [C, N] buffers
+        const float* q = grad.data() + l * 10;
+        const int64_t n = G.id[l], cn = c * N + n;
+        gm[cn * 2] += q[0]; gm[cn * 2 + 1] += q[1];
+        gc[cn * 3] += q[2]; gc[cn * 3 + 1] += q[3]; gc[cn * 3 + 2] += q[4];
+        gcol[cn * 3] += q[5]; gcol[cn * 3 + 1] += q[6]; gcol[cn * 3 + 2] += q[7];
+        gz[cn] += q[8]; go[n] += q[9];
+      }
     }
   });
   auto f = torch::TensorOptions().dtype(torch::kFloat32);
