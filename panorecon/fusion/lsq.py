@@ -9,6 +9,12 @@ the pixel's area weight::
             + w_lap  * sum_i sum_p     a c_i (Lap x (p) - Lap l_i (p))^2          5-point Laplacian, all taps seen by view i
             + w_data * sum_i sum_p     a c_i (x_p - l_i(p) - s_i)^2                weak anchor: fixes the constant
 
+Border of the sky: a view's pixels within ``border_px`` of a large invalid region (the sky; isolated dropped
+pixels do not count) are flying pixels in every monocular teacher, which blends foreground and far background
+there. They take part in no gradient or Laplacian equation and keep only a data anchor scaled by
+``border_anchor``; where no view has a reliable value, the pixel is filled from its neighbours by Laplacian = 0
+equations (linear continuation, weight w_lap) and a weak membrane (gradient = 0, weight w_grad * border_smooth).
+
 The gradient and Laplacian terms are invariant to each view's scale (a log-scale is an additive
 constant), so per-view scale only enters the data term. Summing over views, each pair / pixel carries one
 aggregated weight and target, so the system is H*W x H*W whatever the number of views. Its normal matrix
@@ -53,15 +59,22 @@ class FusionConfig:
     coarse_tol: float = 1e-3  # CG tolerance on every level but the finest
     preconditioner: str = "jacobi"  # "jacobi" or "amg" (pyamg smoothed aggregation: fewer, dearer iterations)
     area_weight: bool = True  # weight equations by cos(latitude), the ERP pixel's solid angle
+    border_px: int = 4  # view pixels next to the sky whose depth is not used as evidence (0: use all)
+    border_anchor: float = 1e-3  # data weight of a border pixel, relative to w_data
+    border_smooth: float = 0.1  # membrane weight (gradient = 0) where a border pixel is filled, relative to w_grad
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
-        for name in ("w_grad", "w_lap", "w_data"):
+        for name in ("w_grad", "w_lap", "w_data", "border_anchor", "border_smooth"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"FusionConfig.{name}={v!r}: expected a finite weight >= 0")
         if not self.w_data > 0:
             raise ValueError(f"FusionConfig.w_data={self.w_data!r}: expected > 0 (it fixes the unknown constant)")
+        if not (isinstance(self.border_px, int) and self.border_px >= 0):
+            raise ValueError(f"FusionConfig.border_px={self.border_px!r}: expected an integer >= 0 (view pixels)")
+        if self.border_px and not self.border_anchor > 0:
+            raise ValueError(f"FusionConfig.border_anchor={self.border_anchor!r}: expected > 0 when border_px > 0")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
         if not (self.tol > 0 and self.maxiter >= 1):
@@ -116,10 +129,10 @@ def _erp_rays(height: int) -> np.ndarray:
     return d
 
 
-def _observe(views, dists, height) -> _Level:
+def _observe(views, dists, height, border_px: int = 0) -> _Level:
     width = 2 * height
     dirs = _erp_rays(height)
-    obs = [warp_to_erp(v, height, width, dirs, d) for v, d in zip(views, dists)]
+    obs = [warp_to_erp(v, height, width, dirs, d, border_px) for v, d in zip(views, dists)]
     seen = np.zeros(height * width, bool)
     for o in obs:
         seen[o.index] = True
@@ -144,6 +157,7 @@ def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
     wgy, tgy = np.zeros(len(vp)), np.zeros(len(vp))
     wl, tl = np.zeros(H * W), np.zeros(H * W)  # indexed by the centre pixel
     data_w = []
+    reliable, border = _trust_border_only_regions(level)
     for o in level.obs:
         if len(o.index) == 0:
             data_w.append(np.zeros(0))
@@ -154,8 +168,9 @@ def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
         hb = r1 - r0 + 1
         L = np.full((hb, W), np.nan)
         C = np.zeros((hb, W))
-        L.ravel()[o.index - r0 * W] = o.log_distance
-        C.ravel()[o.index - r0 * W] = o.confidence
+        use = ~o.border  # border values enter no difference equation
+        L.ravel()[o.index[use] - r0 * W] = o.log_distance[use]
+        C.ravel()[o.index[use] - r0 * W] = o.confidence[use]
         # pairs / stencils with an unseen tap get weight 0 (no masked compaction: whole-band arithmetic)
         Lr = np.roll(L, -1, axis=1)
         _accumulate(wgx[band], tgx[band], Lr - L, np.minimum(C, np.roll(C, -1, axis=1)))
@@ -164,7 +179,8 @@ def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
         if hb > 2:
             lv = (Lr + np.roll(L, 1, axis=1) - 4 * L)[1:-1] + L[:-2] + L[2:]
             _accumulate(wl[(r0 + 1) * W:r1 * W], tl[(r0 + 1) * W:r1 * W], lv, C[1:-1])
-        data_w.append(cfg.w_data * o.confidence * area[o.index])
+        data_w.append(cfg.w_data * o.confidence * area[o.index] * np.where(o.border, cfg.border_anchor, 1.0))
+    _add_fill(border & ~reliable, level.seen, H, W, wgx, wgy, wl, cfg.border_smooth)
     # Laplacian rows exist for interior rows only
     wl, tl = wl[lc], tl[lc]
     area_v = 0.5 * (area[vp] + area[vq])
@@ -183,6 +199,48 @@ def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
     Bw = sp.csr_matrix((B.data * np.sqrt(w_rows)[row_of_entry], B.indices, B.indptr), shape=B.shape)
     A = (Bw.T @ Bw).tocsr()
     return A, b0, data_w
+
+
+def _trust_border_only_regions(level: _Level) -> tuple[np.ndarray, np.ndarray]:
+    """Border observations in a connected region of seen pixels (4-neighbour, wrapping at the seam) that no
+    reliable observation reaches are the only evidence there (a thin ridge or pole against the sky): they are
+    made ordinary observations again (``border`` cleared in place). -> (reliable, border-only) [H*W] bool."""
+    from scipy import ndimage
+    from scipy.sparse.csgraph import connected_components
+
+    H, W, N = level.height, level.width, level.height * level.width
+    reliable, border = np.zeros(N, bool), np.zeros(N, bool)
+    for o in level.obs:
+        reliable[o.index[~o.border]] = True
+        border[o.index[o.border]] = True
+    if not (border & ~reliable).any():
+        return reliable, border & ~reliable
+    labels, n = ndimage.label(level.seen.reshape(H, W))
+    wrap = (labels[:, 0] > 0) & (labels[:, -1] > 0)  # regions that continue across the seam are one region
+    graph = sp.coo_matrix((np.ones(wrap.sum()), (labels[wrap, 0], labels[wrap, -1])), shape=(n + 1, n + 1))
+    region = connected_components(graph, directed=False)[1][labels.ravel()]
+    supported = np.bincount(region, reliable, minlength=region.max() + 1) > 0
+    for o in level.obs:
+        o.border &= supported[region[o.index]]
+    reliable[border & ~supported[region]] = True
+    return reliable, border & ~reliable
+
+
+def _add_fill(fill: np.ndarray, seen: np.ndarray, H: int, W: int, wgx, wgy, wl, membrane: float) -> None:
+    """Equations with target 0 for the pixels ``fill`` [H*W] that only border observations reach, added in place
+    to the summed confidences (which later take the w_grad / w_lap factors): weight 1 on a Laplacian row centred
+    on every interior pixel whose stencil touches a fill pixel and lies in ``seen``, ``membrane`` on every seen
+    gradient pair with a fill pixel in it."""
+    if not fill.any():
+        return
+    F, S = fill.reshape(H, W), seen.reshape(H, W)
+    right = lambda a: np.roll(a, -1, axis=1)  # noqa: E731
+    left = lambda a: np.roll(a, 1, axis=1)  # noqa: E731
+    wgx += membrane * ((F | right(F)) & S & right(S)).ravel()
+    wgy += membrane * ((F[1:] | F[:-1]) & S[1:] & S[:-1]).ravel()
+    touch = (F | left(F) | right(F))[1:-1] | F[:-2] | F[2:]
+    inside = (S & left(S) & right(S))[1:-1] & S[:-2] & S[2:]
+    wl[W:(H - 1) * W] += (touch & inside).ravel()
 
 
 def _accumulate(weight_sum: np.ndarray, target_sum: np.ndarray, value: np.ndarray, conf: np.ndarray) -> None:
@@ -295,7 +353,7 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
     prev_seen = None
     for li, h in enumerate(pyramid_heights(height, cfg.levels)):
         tl = time.perf_counter()
-        level = _observe(views, dists, h)
+        level = _observe(views, dists, h, cfg.border_px)
         direct = li == 0 and h * 2 * h <= 40_000
         A, b0, data_w = _assemble(level, cfg, sparse=direct or cfg.preconditioner == "amg")
         if s is None:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, erp_directions
@@ -14,11 +15,18 @@ class ErpObservation:
 
     index: [M] int64 flat ERP pixel indices the view sees with a valid depth; log_distance: [M] float64;
     confidence: [M] float64 in (0, 1], cos^2 of the angle between the pixel's ray and the optical axis.
+    border: [M] bool, the observation lies on the border of a large invalid region such as the sky
+    (``region_border``), where the teacher's depth is not evidence; all False unless asked for.
     """
 
     index: np.ndarray
     log_distance: np.ndarray
     confidence: np.ndarray
+    border: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.border is None:
+            self.border = np.zeros(len(self.index), bool)
 
     def dense(self, n_pixels: int, fill=np.nan) -> np.ndarray:
         out = np.full(n_pixels, fill, dtype=np.float64)
@@ -26,11 +34,30 @@ class ErpObservation:
         return out
 
 
+def region_border(valid: np.ndarray, width_px: int) -> np.ndarray:
+    """The valid pixels within ``width_px`` (view pixels, Euclidean) of a large invalid region, [h, w] bool.
+
+    Large = what survives a 3 x 3 morphological opening of the invalid mask, so isolated dropped pixels do
+    not count but the sky (or any invalid area at least 3 px across) does. Monocular teachers blend the
+    foreground with the far background across such borders (flying pixels), so their depths there are not
+    evidence. 0 px: no border."""
+    if width_px <= 0:
+        return np.zeros(valid.shape, bool)
+    kernel = np.ones((3, 3), np.uint8)
+    large = cv2.morphologyEx((~valid).astype(np.uint8), cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_CONSTANT,
+                             borderValue=0).astype(bool)
+    if not large.any():
+        return np.zeros(valid.shape, bool)
+    dist = cv2.distanceTransform((~large).astype(np.uint8), cv2.DIST_L2, 5)
+    return valid & (dist <= width_px)
+
+
 def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray | None = None,
-                distance: np.ndarray | None = None) -> ErpObservation:
+                distance: np.ndarray | None = None, border_px: int = 0) -> ErpObservation:
     """Nearest-neighbour backward warp of a view's ray distance onto the ERP grid (no blending across depth
     edges). ``directions`` [H*W, 3] may be passed to share the ERP rays between views; ``distance`` [h, w]
-    overrides ``view.to_distance()`` (e.g. after affine alignment)."""
+    overrides ``view.to_distance()`` (e.g. after affine alignment); observations within ``border_px`` view
+    pixels of a large invalid region are flagged in ``border`` (``region_border``)."""
     if directions is None:
         directions = erp_directions(height, width).reshape(-1, 3)
     dist = view.to_distance() if distance is None else distance
@@ -39,7 +66,8 @@ def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray
     index = index + r0 * width
     d = dist[rows, cols]
     ok = np.isfinite(d) & (d > 0)
-    return ErpObservation(index[ok], np.log(d[ok].astype(np.float64)), cos[ok] ** 2)
+    border = region_border(np.isfinite(dist) & (dist > 0), border_px)[rows, cols]
+    return ErpObservation(index[ok], np.log(d[ok].astype(np.float64)), cos[ok] ** 2, border[ok])
 
 
 def view_row_band(camera: PinholeCamera, height: int) -> tuple[int, int]:

@@ -128,7 +128,9 @@ class TestNumericalStability:
         assert np.isfinite(r.distance[r.seen]).all() and r.seen.all()
         assert all(isinstance(i, int) for i in r.report["iterations"]) and math.isfinite(r.report["residual"])
 
-    @pytest.mark.parametrize("field,value", [("w_data", 0.0), ("w_lap", -1.0), ("w_grad", float("nan")), ("preconditioner", "ilu")])
+    @pytest.mark.parametrize("field,value", [("w_data", 0.0), ("w_lap", -1.0), ("w_grad", float("nan")), ("preconditioner", "ilu"),
+                                             ("border_px", -1), ("border_px", 2.5), ("border_anchor", 0.0),
+                                             ("border_smooth", float("inf"))])
     def test_bad_config_is_one_clear_error(self, field, value, fib20):
         with pytest.raises(ValueError, match=field):
             fuse_views(make_views(fib20, 16, np.random.default_rng(0)), 8, 16, FusionConfig(**{field: value}))
@@ -139,6 +141,75 @@ class TestNumericalStability:
             fuse_views(views, 10, 30)
         with pytest.raises(ValueError, match="no views"):
             fuse_views([], 8, 16)
+
+
+def _open_box(d):
+    """The box room without a ceiling: sky (infinite) above 0.1 of elevation."""
+    return np.where(d[..., 2] > 0.1, np.inf, box_distance(d))
+
+
+def _flying_pixel_views(layout, size, rng, width_px=3, factor=20.0):
+    """Open-box views whose depth within ``width_px`` of the sky is ``factor`` times too far, as a teacher that
+    blends the wall with the sky behind it."""
+    views = make_views(layout, size, rng, field=_open_box)
+    for v in views:
+        sky = ~v.valid
+        if sky.any():
+            import cv2
+
+            near = cv2.distanceTransform((~sky).astype(np.uint8), cv2.DIST_L2, 5) <= width_px
+            v.depth[near & v.valid] *= factor
+    return views
+
+
+class TestSkyBorder:
+    def test_region_border_ignores_isolated_drops_and_follows_large_regions(self):
+        from panorecon.fusion.warp import region_border
+
+        valid = np.ones((40, 60), bool)
+        valid[5, 7] = valid[20, 30] = valid[33, 50] = False  # dropped pixels
+        assert not region_border(valid, 4).any()
+        valid[:10, :] = False  # a sky band across the top
+        border = region_border(valid, 4)
+        rows = np.flatnonzero(border.any(1))
+        assert rows.min() == 10 and rows.max() == 13  # within 4 px of the sky, valid pixels only
+        assert not (border & ~valid).any() and not region_border(valid, 0).any()
+
+    def test_flying_pixels_at_the_sky_border_are_filled_from_the_wall(self, fib20):
+        views = _flying_pixel_views(fib20, 96, np.random.default_rng(15))
+        truth = _open_box(erp_directions(48, 96))
+        used = fuse_views(views, 48, 96, FusionConfig(border_px=0))
+        filled = fuse_views(views, 48, 96, FusionConfig(border_px=4))
+        np.testing.assert_array_equal(used.seen, filled.seen)  # the border is filled, not dropped
+        assert np.isfinite(filled.distance[filled.seen]).all()
+        e_used = depth_metrics(used.distance, truth)["abs_rel"]
+        e_filled = depth_metrics(filled.distance, truth)["abs_rel"]
+        assert e_filled < 0.3 * e_used and e_filled < 0.05, (e_used, e_filled)
+
+    def test_a_region_reached_only_by_border_pixels_keeps_the_teacher_value(self, fib20):
+        """A thin strip between sky above and below, all of it within 8 px of the sky in every view: nothing
+        reliable to fill it from, so its border observations are used as ordinary ones."""
+        from panorecon.fusion.warp import region_border
+
+        def strip(d):
+            return np.where(np.abs(d[..., 2]) < 0.04, box_distance(d), np.inf)
+
+        views = make_views(fib20, 64, np.random.default_rng(16), field=strip)
+        assert all((region_border(v.valid, 8) == v.valid).all() for v in views)
+        truth = strip(erp_directions(64, 128))
+        plain = fuse_views(views, 64, 128, FusionConfig(border_px=0))
+        r = fuse_views(views, 64, 128, FusionConfig(border_px=8))
+        assert r.seen.sum() > 100 and np.isfinite(r.distance[r.seen]).all()
+        np.testing.assert_allclose(r.distance[r.seen], plain.distance[plain.seen], rtol=1e-5)
+        assert depth_metrics(r.distance, truth)["abs_rel"] < 0.01
+
+    @settings(max_examples=8, deadline=None)
+    @given(st.floats(-6, 6), st.floats(-6, 6), st.integers(0, 8))
+    def test_any_border_weights(self, la, lm, px):
+        views = _flying_pixel_views(make_layout("fibonacci", 12), 32, np.random.default_rng(17))
+        r = fuse_views(views, 16, 32, FusionConfig(border_px=px, border_anchor=10.0**la, border_smooth=10.0**lm,
+                                                   maxiter=100))
+        assert r.seen.any() and np.isfinite(r.distance[r.seen]).all() and math.isfinite(r.report["residual"])
 
 
 def test_jacobi_and_amg_agree(fib20):
