@@ -1,5 +1,5 @@
 """Error against run time for point-cloud fusion: Fibonacci N in {12, 15, 20, 25, 40}, the other layouts,
-and solver settings (pyramid depth, CG tolerance), on the synthetic scenes.
+and solver settings (pyramid depth, CG tolerance, sky-border width), on the synthetic scenes.
 
     python eval/sweep_fusion.py --out out/sweep [--scenes bedroom,beach] [--width 512] [--teacher sim:relative]
 
@@ -18,18 +18,21 @@ from panorecon.io import atomic_write
 from panorecon.scenes import list_scenes, load_scene
 from panorecon.sources import run_source
 
-FIELDS = ["scene", "config", "source", "views", "levels", "tol", "abs_rel", "teacher_per_view_abs_rel", "delta1", "chamfer", "seconds", "fusion_seconds", "peak_rss_mb"]
+FIELDS = ["scene", "config", "source", "views", "levels", "tol", "border_px", "abs_rel", "teacher_per_view_abs_rel", "delta1", "chamfer", "seconds", "fusion_seconds", "peak_rss_mb"]
 
 
 def configurations():
+    """-> (name, source, views, FusionConfig or None for the source's default)."""
     for n in (12, 15, 20, 25, 40):
-        yield f"fibonacci-{n}", "fibonacci", n, None, 1e-5
+        yield f"fibonacci-{n}", "fibonacci", n, FusionConfig(tol=1e-5)
     for src in ("icosahedral", "latlong", "cube", "moge-merge"):
-        yield src, src, None, None, None
+        yield src, src, None, None
     for levels in (1, 2, 3):
-        yield f"fibonacci-20-levels{levels}", "fibonacci", 20, levels, 1e-5
+        yield f"fibonacci-20-levels{levels}", "fibonacci", 20, FusionConfig(levels=levels, tol=1e-5)
     for tol in (1e-3, 1e-7):
-        yield f"fibonacci-20-tol{tol:g}", "fibonacci", 20, None, tol
+        yield f"fibonacci-20-tol{tol:g}", "fibonacci", 20, FusionConfig(tol=tol)
+    for border in (0, 2, 8):
+        yield f"fibonacci-20-border{border}", "fibonacci", 20, FusionConfig(tol=1e-5, border_px=border)
 
 
 def plot(rows, path: Path) -> None:
@@ -40,7 +43,7 @@ def plot(rows, path: Path) -> None:
     df[["abs_rel", "seconds"]] = df[["abs_rel", "seconds"]].astype(float)
     mean = df.groupby("config")[["seconds", "abs_rel"]].mean()
     pareto_plot(mean, df, "seconds", "abs_rel", "AbsRel (median-aligned, mean over scenes)", path,
-                title="fusion: error against run time")
+                title="fusion: error against run time", label_col="config")
 
 
 def main(argv=None):
@@ -57,14 +60,14 @@ def main(argv=None):
     done = {(r["scene"], r["config"]) for r in rows}
     for scene_name in args.scenes.split(","):
         scene = None
-        for name, source, n, levels, tol in configurations():
+        for name, source, n, cfg in configurations():
             if (scene_name, name) in done:
                 continue
             scene = scene or load_scene(scene_name, args.width)
-            cfg = None if tol is None else FusionConfig(levels=levels, tol=tol)
             _, rep = run_source(scene, source, args.teacher, n, cfg)
-            row = {"scene": scene_name, "config": name, "source": source, "views": rep["views"], "levels": levels or "auto",
-                   "tol": tol or "", "abs_rel": rep["depth"]["abs_rel"],
+            row = {"scene": scene_name, "config": name, "source": source, "views": rep["views"],
+                   "levels": (cfg.levels or "auto") if cfg else "", "tol": cfg.tol if cfg else "",
+                   "border_px": cfg.border_px if cfg else "", "abs_rel": rep["depth"]["abs_rel"],
                    "teacher_per_view_abs_rel": rep.get("teacher_per_view_abs_rel_median", ""), "delta1": rep["depth"]["delta1"],
                    "chamfer": rep["points"]["chamfer"], "seconds": rep["seconds"]["total"] - rep["seconds"]["metrics"],
                    "fusion_seconds": rep["seconds"].get("fusion", 0.0), "peak_rss_mb": rep["peak_rss_mb"]}

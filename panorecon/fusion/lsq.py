@@ -62,10 +62,11 @@ class FusionConfig:
     border_px: int = 4  # view pixels next to the sky whose depth is not used as evidence (0: use all)
     border_anchor: float = 1e-3  # data weight of a border pixel, relative to w_data
     border_smooth: float = 0.1  # membrane weight (gradient = 0) where a border pixel is filled, relative to w_grad
+    border_laplacian: float = 1.0  # Laplacian = 0 weight where a border pixel is filled, relative to w_lap
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
-        for name in ("w_grad", "w_lap", "w_data", "border_anchor", "border_smooth"):
+        for name in ("w_grad", "w_lap", "w_data", "border_anchor", "border_smooth", "border_laplacian"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"FusionConfig.{name}={v!r}: expected a finite weight >= 0")
@@ -180,7 +181,7 @@ def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
             lv = (Lr + np.roll(L, 1, axis=1) - 4 * L)[1:-1] + L[:-2] + L[2:]
             _accumulate(wl[(r0 + 1) * W:r1 * W], tl[(r0 + 1) * W:r1 * W], lv, C[1:-1])
         data_w.append(cfg.w_data * o.confidence * area[o.index] * np.where(o.border, cfg.border_anchor, 1.0))
-    _add_fill(border & ~reliable, level.seen, H, W, wgx, wgy, wl, cfg.border_smooth)
+    _add_fill(border & ~reliable, level.seen, H, W, wgx, wgy, wl, cfg.border_smooth, cfg.border_laplacian)
     # Laplacian rows exist for interior rows only
     wl, tl = wl[lc], tl[lc]
     area_v = 0.5 * (area[vp] + area[vq])
@@ -226,11 +227,12 @@ def _trust_border_only_regions(level: _Level) -> tuple[np.ndarray, np.ndarray]:
     return reliable, border & ~reliable
 
 
-def _add_fill(fill: np.ndarray, seen: np.ndarray, H: int, W: int, wgx, wgy, wl, membrane: float) -> None:
+def _add_fill(fill: np.ndarray, seen: np.ndarray, H: int, W: int, wgx, wgy, wl, membrane: float,
+              laplacian: float) -> None:
     """Equations with target 0 for the pixels ``fill`` [H*W] that only border observations reach, added in place
-    to the summed confidences (which later take the w_grad / w_lap factors): weight 1 on a Laplacian row centred
-    on every interior pixel whose stencil touches a fill pixel and lies in ``seen``, ``membrane`` on every seen
-    gradient pair with a fill pixel in it."""
+    to the summed confidences (which later take the w_grad / w_lap factors): ``laplacian`` on a Laplacian row
+    centred on every interior pixel whose stencil touches a fill pixel and lies in ``seen``, ``membrane`` on
+    every seen gradient pair with a fill pixel in it."""
     if not fill.any():
         return
     F, S = fill.reshape(H, W), seen.reshape(H, W)
@@ -240,7 +242,7 @@ def _add_fill(fill: np.ndarray, seen: np.ndarray, H: int, W: int, wgx, wgy, wl, 
     wgy += membrane * ((F[1:] | F[:-1]) & S[1:] & S[:-1]).ravel()
     touch = (F | left(F) | right(F))[1:-1] | F[:-2] | F[2:]
     inside = (S & left(S) & right(S))[1:-1] & S[:-2] & S[2:]
-    wl[W:(H - 1) * W] += (touch & inside).ravel()
+    wl[W:(H - 1) * W] += laplacian * (touch & inside).ravel()
 
 
 def _accumulate(weight_sum: np.ndarray, target_sum: np.ndarray, value: np.ndarray, conf: np.ndarray) -> None:

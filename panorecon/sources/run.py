@@ -50,7 +50,8 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     """-> (PointCloud, report dict). The report: source, teacher, scene, views, seconds per stage and total,
     peak_rss_mb (process peak so far), fusion solver report, depth and point metrics against the truth
     (median-aligned unless the teacher is metric; the cloud is scaled by the same factor before point
-    metrics) or 'n/a: <reason>', and the median per-view teacher AbsRel."""
+    metrics) or 'n/a: <reason>', and the median per-view teacher AbsRel; for affine-invariant teachers also
+    ``depth_inverse_affine`` (the fused map aligned by scale and shift in inverse distance)."""
     t_total = time.perf_counter()
     spec = get_source(source_name)
     if spec.uses_teacher and not teacher_spec:
@@ -76,6 +77,11 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
             dm = depth_metrics(distance, scene.distance, "none" if metric else "median", ~scene.sky)
             scale = dm["scale"] if math.isfinite(dm["scale"]) else 1.0
             report["depth"] = _finite_or_na(dm, "no pixel with both prediction and truth")
+            if any(v.affine for v in info.get("view_depths") or ()):
+                # affine views fix the fused map only up to a global scale and (nearly) a shift in inverse
+                # distance: measured as well after that alignment, the protocol of the per-view number
+                report["depth_inverse_affine"] = _finite_or_na(
+                    depth_metrics(distance, scene.distance, "inverse-affine", ~scene.sky), "no pixel to compare")
         else:
             report["depth"] = "n/a: the source gives no depth map"
         truth = scene.point_cloud()

@@ -10,3 +10,17 @@ def test_configurations_cover_the_issue():
     names = [c[0] for c in sweep.configurations()]
     assert {f"fibonacci-{n}" for n in (12, 15, 20, 25, 40)} <= set(names)
     assert {"icosahedral", "latlong", "cube", "moge-merge"} <= set(names)
+
+
+def test_a_small_sweep_writes_csv_and_plot_and_resumes(tmp_path, monkeypatch, capsys):
+    from panorecon.fusion import FusionConfig
+
+    configs = [("fibonacci-12", "fibonacci", 12, FusionConfig(tol=1e-5)), ("cube", "cube", None, None)]
+    monkeypatch.setattr(sweep, "configurations", lambda: iter(configs))
+    sweep.main(["--out", str(tmp_path), "--scenes", "bedroom", "--width", "128"])
+    rows = (tmp_path / "sweep.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[0].startswith("scene,config") and (tmp_path / "pareto.png").stat().st_size > 0
+    capsys.readouterr()
+    sweep.main(["--out", str(tmp_path), "--scenes", "bedroom", "--width", "128"])  # everything done: nothing rerun
+    assert "AbsRel" not in capsys.readouterr().out
+    assert len((tmp_path / "sweep.csv").read_text().splitlines()) == 3

@@ -130,7 +130,7 @@ class TestNumericalStability:
 
     @pytest.mark.parametrize("field,value", [("w_data", 0.0), ("w_lap", -1.0), ("w_grad", float("nan")), ("preconditioner", "ilu"),
                                              ("border_px", -1), ("border_px", 2.5), ("border_anchor", 0.0),
-                                             ("border_smooth", float("inf"))])
+                                             ("border_smooth", float("inf")), ("border_laplacian", -1.0)])
     def test_bad_config_is_one_clear_error(self, field, value, fib20):
         with pytest.raises(ValueError, match=field):
             fuse_views(make_views(fib20, 16, np.random.default_rng(0)), 8, 16, FusionConfig(**{field: value}))

@@ -28,6 +28,23 @@ class TestDepth:
         assert m["rmse"] == pytest.approx(np.sqrt(0.01 / 2))
         assert depth_metrics(p, np.full((2, 2), np.nan))["pixels"] == 0
 
+    @given(st.floats(0.05, 20.0), st.floats(-0.05, 0.05))
+    def test_inverse_affine_alignment_undoes_scale_and_shift_of_inverse_depth(self, a, b):
+        rng = np.random.default_rng(1)
+        t = rng.uniform(1, 10, (16, 16))
+        inv = a / t + b  # what an affine-invariant disparity model returns, as a "depth" 1 / inv
+        p = np.where(inv > 0, 1.0 / np.where(inv > 0, inv, 1.0), np.nan)
+        m = depth_metrics(p, t, align="inverse-affine")
+        assert m["abs_rel"] < 1e-9 and m["pixels"] == int((inv > 0).sum())
+        assert m["shift"] == pytest.approx(-b / a, abs=1e-9)
+        # median alignment cannot undo the shift
+        if abs(b) > 0.01:
+            assert depth_metrics(p, t)["abs_rel"] > 1e-3
+
+    def test_unknown_alignment_is_one_clear_error(self):
+        with pytest.raises(ValueError, match="inverse-affine"):
+            depth_metrics(np.ones((2, 2)), np.ones((2, 2)), align="affine")
+
     def test_shape_mismatch(self):
         with pytest.raises(ValueError, match="shape"):
             depth_metrics(np.ones((2, 2)), np.ones((3, 2)))
