@@ -52,6 +52,32 @@ class TestAccuracy:
         assert rep["pairs"] > 20 and len(dists) == 20
 
 
+    def test_noisy_affine_views_keep_their_relative_scales(self, fib20, box_truth):
+        """3 % noise on disparity: a least-squares solve with a_ref = 1 shrinks the other views' scales (errors
+        in variables); the alignment must recover the true ratios."""
+        rng = np.random.default_rng(21)
+        views, alphas = [], rng.uniform(0.5, 2, 20)
+        c = rng.uniform(-0.05, 0.05, 20)
+        c -= c.mean()
+        for f, ci, alpha in zip(fib20.directions, c, alphas):
+            cam = centred_camera(f, 96, fib20.fov_deg)
+            z = box_distance(cam.world_rays()) / cam.z_to_distance_factor()
+            raw = (alpha / z + ci * alpha) * (1 + 0.03 * rng.standard_normal(z.shape))
+            views.append(ViewDepth(cam, raw.astype(np.float32), "disparity", np.ones(raw.shape, bool), affine=True))
+        dists, shifts, rep = align_affine_views(views)
+        ref = rep["reference_view"]
+        np.testing.assert_allclose(np.array(rep["scale"]), alphas[ref] / alphas, rtol=0.05)
+        assert depth_metrics(fuse_views(views, 64, 128).distance, box_truth(64))["abs_rel"] < 0.03
+
+    def test_a_view_without_overlap_is_reported_unconnected(self, fib20):
+        views = make_views(fib20, 32, np.random.default_rng(22))
+        views = [ViewDepth(v.camera, 1.0 / v.depth, "disparity", v.valid, affine=True) for v in views]
+        far = centred_camera(np.array([0.0, 0.0, 1.0]), 8, 1.0)  # a 1-degree view straight up: overlaps nothing
+        views.append(ViewDepth(far, np.ones((8, 8), np.float32), "disparity", np.ones((8, 8), bool), affine=True))
+        _, _, rep = align_affine_views(views[:3] + views[-1:])
+        assert 3 in rep["unconnected_views"] and rep["scale"][3] == 1.0 and rep["shift"][3] == 0.0
+
+
 class TestNumericalStability:
     def test_huge_depth_range_1e_minus_3_to_1e4(self, fib20):
         def field(d):  # log10 distance sweeps -3 .. 4 smoothly over the sphere
