@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..io import peak_rss_mb
+from ..io import atomic_write, peak_rss_mb
 
 
 def environment() -> dict:
@@ -55,5 +55,6 @@ def emit(result: dict, out_path: str | None) -> dict:
     text = json.dumps(result, indent=2)
     print(text)
     if out_path:
-        Path(out_path).write_text(text + "\n")
+        with atomic_write(Path(out_path)) as tmp:
+            Path(tmp).write_text(text + "\n")
     return result
