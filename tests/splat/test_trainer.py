@@ -83,8 +83,9 @@ def test_strategy_clones_splits_prunes_and_keeps_adam_aligned():
         model.log_scales[:3] = np.log(0.001)  # small: cloned
         model.log_scales[3:] = np.log(1.0)    # large: split
         model.logit_opacities[5] = -10.0      # transparent: pruned
-    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": 1e-3, "name": n}
-                            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
+    from panorecon.splat.trainer import _adam
+
+    opt = _adam(model, [(n, 1e-3) for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
     (model.means.sum() + model.sh().sum() + model.opacities().sum() + model.scales().sum() + model.quats.sum()).backward()
     opt.step()
     s = DefaultStrategy(refine_start=0, refine_every=1)
@@ -99,6 +100,10 @@ def test_strategy_clones_splits_prunes_and_keeps_adam_aligned():
         assert p is getattr(model, group["name"]) and opt.state[p]["exp_avg"].shape == p.shape
     edit_parameters(model, opt, torch.ones(len(model), dtype=torch.bool))
     assert len(model) == 9
+    before = model.means.detach().clone()
+    model.means.sum().backward()
+    opt.step()  # the (fused) optimizer takes the edited parameters and moments
+    assert torch.isfinite(model.means).all() and not torch.equal(model.means, before)
 
 
 def _stack_scene():
