@@ -13,7 +13,8 @@ Border of the sky: a view's pixels within ``border_px`` of a large invalid regio
 pixels do not count) are flying pixels in every monocular teacher, which blends foreground and far background
 there. They take part in no gradient or Laplacian equation and keep only a data anchor scaled by
 ``border_anchor``; where no view has a reliable value, the pixel is filled from its neighbours by Laplacian = 0
-equations (linear continuation, weight w_lap) and a weak membrane (gradient = 0, weight w_grad * border_smooth).
+equations (linear continuation, weight w_lap * border_laplacian) and a weak membrane (gradient = 0, weight
+w_grad * border_smooth). A connected region that no reliable observation reaches keeps its border values.
 
 The gradient and Laplacian terms are invariant to each view's scale (a log-scale is an additive
 constant), so per-view scale only enters the data term. Summing over views, each pair / pixel carries one
