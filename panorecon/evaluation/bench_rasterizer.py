@@ -1,11 +1,13 @@
 """Rasterizer benchmark: forward + backward time of the ``torch`` reference and the ``cpu`` kernel, measured in
 the same run, at 128², 256², 512² with 10k and 100k Gaussians.
 
-    python -m panorecon.evaluation.bench_rasterizer [--quick] [--repeats N] [--out result.json]
+    python -m panorecon.evaluation.bench_rasterizer [--quick] [--repeats N] [--stages] [--out result.json]
 
 Scene: Gaussians uniformly in a box 2-8 m in front of one 60° camera, isotropic-ish scales 1-4 cm (a few
 pixels each at 256²), opacities 0.1-0.9, RGB colours. Median seconds over repeats (the torch reference is
-run once where one run exceeds 60 s, and says so), peak RSS of this process, ratio torch / cpu.
+run once where one run exceeds 60 s, and says so), peak RSS of this process, ratio torch / cpu. With
+``--stages``, also the cpu backend's time split at 256²/100k: projection forward, compositing forward,
+compositing backward, projection backward (each stage's backward run alone with ``torch.autograd.grad``).
 """
 from __future__ import annotations
 
@@ -45,6 +47,31 @@ def fwd_bwd(backend: str, size: int, n: int) -> float:
     return time.perf_counter() - t
 
 
+def cpu_stages(size: int = 256, n: int = 100_000, repeats: int = 5) -> dict:
+    """Median milliseconds of the cpu backend's four stages (see the module docstring)."""
+    from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+    from panorecon.splat.rasterize import cpu_backend, project_gaussians
+
+    K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
+    V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
+    times = {k: [] for k in ("projection_forward", "composite_forward", "composite_backward", "projection_backward")}
+    for _ in range(repeats):
+        means, quats, scales, opac, colors = [t.clone().requires_grad_(True) for t in scene(n)]
+        t0 = time.perf_counter()
+        m2d, con, dep, radii = project_gaussians(means, quats, scales, V, K, size, size)
+        t1 = time.perf_counter()
+        cols = colors[None]
+        img, alpha, depth, _ = cpu_backend.composite(m2d, con, cols, opac, dep, radii, size, size)
+        t2 = time.perf_counter()
+        g = torch.autograd.grad(img.sum() + alpha.sum() + depth.sum(), [m2d, con, cols, dep])
+        t3 = time.perf_counter()
+        torch.autograd.grad([m2d, con, cols, dep], [means, quats, scales, colors], list(g))
+        t4 = time.perf_counter()
+        for k, v in zip(times, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+            times[k].append(v)
+    return {"size": size, "gaussians": n, **{k + "_ms": 1000 * statistics.median(v) for k, v in times.items()}}
+
+
 def max_difference(size: int, n: int) -> dict:
     """Largest |cpu - torch| on the image and on the means gradient (the correctness check of the benchmark)."""
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
@@ -66,6 +93,7 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--stages", action="store_true", help="also the cpu backend's time per stage at 256²/100k")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     grid = [(128, 10_000)] if args.quick else [(s, n) for s in (128, 256, 512) for n in (10_000, 100_000)]
@@ -80,8 +108,9 @@ def main(argv=None) -> dict:
         row["speedup_cpu_vs_torch"] = row["torch"]["median_seconds"] / row["cpu"]["median_seconds"]
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
+    extra = {"cpu_stages": cpu_stages()} if args.stages else {}
     return emit({"benchmark": "rasterizer forward+backward", **environment(), "threads": torch.get_num_threads(),
-                 "max_abs_difference": max_difference(*grid[0]),
+                 "max_abs_difference": max_difference(*grid[0]), **extra,
                  "peak_rss_mb": peak_rss_mb(), "results": rows}, args.out)
 
 
