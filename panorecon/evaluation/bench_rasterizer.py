@@ -7,7 +7,8 @@ Scene: Gaussians uniformly in a box 2-8 m in front of one 60° camera, isotropic
 pixels each at 256²), opacities 0.1-0.9, RGB colours. Median seconds over repeats (the torch reference is
 run once where one run exceeds 60 s, and says so), peak RSS of this process, ratio torch / cpu. With
 ``--stages``, also the cpu backend's time split at 256²/100k: projection forward, compositing forward,
-compositing backward, projection backward (each stage's backward run alone with ``torch.autograd.grad``).
+compositing backward, projection backward (each stage's backward run alone with ``torch.autograd.grad``), and
+the PyTorch reference projection's forward and backward in the same run.
 """
 from __future__ import annotations
 
@@ -48,27 +49,32 @@ def fwd_bwd(backend: str, size: int, n: int) -> float:
 
 
 def cpu_stages(size: int = 256, n: int = 100_000, repeats: int = 5) -> dict:
-    """Median milliseconds of the cpu backend's four stages (see the module docstring)."""
+    """Median milliseconds of the cpu backend's four stages and of the reference projection (module docstring)."""
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
     from panorecon.splat.rasterize import cpu_backend, project_gaussians
 
     K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
     V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
-    times = {k: [] for k in ("projection_forward", "composite_forward", "composite_backward", "projection_backward")}
+    times = {k: [] for k in ("projection_forward", "composite_forward", "composite_backward", "projection_backward",
+                             "reference_projection_forward", "reference_projection_backward")}
     for _ in range(repeats):
-        means, quats, scales, opac, colors = [t.clone().requires_grad_(True) for t in scene(n)]
-        t0 = time.perf_counter()
-        m2d, con, dep, radii = project_gaussians(means, quats, scales, V, K, size, size)
-        t1 = time.perf_counter()
-        cols = colors[None]
-        img, alpha, depth, _ = cpu_backend.composite(m2d, con, cols, opac, dep, radii, size, size)
-        t2 = time.perf_counter()
-        g = torch.autograd.grad(img.sum() + alpha.sum() + depth.sum(), [m2d, con, cols, dep])
-        t3 = time.perf_counter()
-        torch.autograd.grad([m2d, con, cols, dep], [means, quats, scales, colors], list(g))
-        t4 = time.perf_counter()
-        for k, v in zip(times, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
-            times[k].append(v)
+        for project, prefix in ((cpu_backend.project, ""), (project_gaussians, "reference_")):
+            means, quats, scales, opac, colors = [t.clone().requires_grad_(True) for t in scene(n)]
+            t0 = time.perf_counter()
+            m2d, con, dep, radii = project(means, quats, scales, V, K, size, size)
+            t1 = time.perf_counter()
+            cols = colors[None]
+            img, alpha, depth, _ = cpu_backend.composite(m2d, con, cols, opac, dep, radii, size, size)
+            t2 = time.perf_counter()
+            g = torch.autograd.grad(img.sum() + alpha.sum() + depth.sum(), [m2d, con, cols, dep])
+            t3 = time.perf_counter()
+            torch.autograd.grad([m2d, con, cols, dep], [means, quats, scales, colors], list(g))
+            t4 = time.perf_counter()
+            times[prefix + "projection_forward"].append(t1 - t0)
+            times[prefix + "projection_backward"].append(t4 - t3)
+            if not prefix:
+                times["composite_forward"].append(t2 - t1)
+                times["composite_backward"].append(t3 - t2)
     return {"size": size, "gaussians": n, **{k + "_ms": 1000 * statistics.median(v) for k, v in times.items()}}
 
 

@@ -4,7 +4,7 @@ import torch
 
 from panorecon.geometry import PointCloud, intrinsics_from_fov, look_at_viewmat
 from panorecon.io import PanoreconInputError
-from panorecon.splat.losses import gaussian_window, pearson_depth_loss, ssim, total_loss
+from panorecon.splat.losses import gaussian_window, pearson_depth_loss, ssim, ssim_reference, total_loss
 from panorecon.splat.model import GaussianModel
 from panorecon.splat.ply import load_ply, ply_properties, save_ply
 from panorecon.splat.rasterize import rasterize
@@ -94,6 +94,18 @@ class TestLosses:
         got = ssim(torch.from_numpy(a), torch.from_numpy(b)).item()
         assert got == pytest.approx(ssim_slow(a, b), abs=1e-10)
         assert ssim(torch.from_numpy(a), torch.from_numpy(a)).item() == pytest.approx(1.0)
+
+    def test_separable_ssim_matches_the_2d_window_with_gradients(self):
+        g = torch.Generator().manual_seed(2)
+        a = torch.rand(2, 40, 33, 3, generator=g, dtype=torch.float64)
+        b = (a + 0.2 * torch.randn(a.shape, generator=g, dtype=torch.float64)).clamp(0, 1)
+        leaves = [a.clone().requires_grad_(True), a.clone().requires_grad_(True)]
+        fast, ref = ssim(leaves[0], b), ssim_reference(leaves[1], b)
+        torch.testing.assert_close(fast, ref, rtol=0, atol=1e-13)
+        fast.backward()
+        ref.backward()
+        assert leaves[1].grad.abs().max() > 0
+        torch.testing.assert_close(leaves[0].grad, leaves[1].grad, rtol=1e-10, atol=1e-15)
 
     def test_pearson_is_scale_and_shift_invariant(self):
         rng = np.random.default_rng(1)

@@ -55,8 +55,11 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
             means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree, near_plane, far_plane,
             backgrounds, eps2d, tile_size)
         return image, alpha, depth, {**meta, "backend": backend}
-    means2d, conics, depths, radii = project_gaussians(means, quats, scales, viewmats, Ks, width, height,
-                                                       near_plane, far_plane, eps2d)
+    # the C++ projection does not differentiate w.r.t. the cameras: the reference runs when they need gradients
+    project = (cpu_backend.project if backend == "cpu" and not (viewmats.requires_grad or Ks.requires_grad)
+               else project_gaussians)
+    means2d, conics, depths, radii = project(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane,
+                                             eps2d)
     if sh_degree is None:
         if colors.dim() != 2 or colors.shape[-1] != 3:
             raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB (or pass sh_degree for [N, K, 3])")

@@ -1,8 +1,10 @@
-"""The ``cpu`` backend: tiled compositing in C++ (csrc/rasterize_cpu.cpp) with a hand-written backward,
-parallel over tiles through ATen's thread pool (OpenMP). Built with torch.utils.cpp_extension on first use
+"""The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians) and tiled compositing
+(csrc/rasterize_cpu.cpp, parallel over tiles) in C++ with hand-written backwards, through ATen's thread pool
+(OpenMP). Built with torch.utils.cpp_extension on first use
 (or ahead of time by ``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions``
 (default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the two hot
-functions are built twice (AVX2 and baseline x86-64) and the loader picks by CPU. Float32.
+compositing functions are built twice (AVX2 and baseline x86-64) and the loader picks by CPU. Compositing is
+float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from pathlib import Path
 import torch
 
 log = logging.getLogger("panorecon.splat")
-_SOURCE = Path(__file__).parent / "csrc" / "rasterize_cpu.cpp"
+_SOURCES = [Path(__file__).parent / "csrc" / f for f in ("module.cpp", "project_cpu.cpp", "rasterize_cpu.cpp")]
 _module = None
 _error: str | None = None
 
@@ -33,7 +35,7 @@ def load(verbose: bool = False):
     try:
         from torch.utils.cpp_extension import load as load_ext
 
-        _module = load_ext(name="panorecon_rasterize_cpu", sources=[str(_SOURCE)], build_directory=str(build_dir()),
+        _module = load_ext(name="panorecon_rasterize_cpu", sources=[str(p) for p in _SOURCES], build_directory=str(build_dir()),
                            extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"], extra_ldflags=["-fopenmp"], verbose=verbose)
     except Exception as e:  # a missing compiler or headers: fall back to the reference
         _error = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
@@ -43,6 +45,37 @@ def load(verbose: bool = False):
 
 def available() -> bool:
     return load() is not None
+
+
+class _Project(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane, eps2d):
+        means2d, conics, depths, radii = load().project_forward(means, quats, scales, viewmats, Ks, width, height,
+                                                                near_plane, far_plane, eps2d)
+        ctx.save_for_backward(means, quats, scales, viewmats, Ks, radii)
+        ctx.args = (width, height, near_plane, far_plane, eps2d)
+        ctx.mark_non_differentiable(radii)
+        return means2d, conics, depths, radii
+
+    @staticmethod
+    def backward(ctx, g_means2d, g_conics, g_depths, _g_radii):
+        means, quats, scales, viewmats, Ks, radii = ctx.saved_tensors
+        g = [t.contiguous() if t is not None else torch.zeros(shape, dtype=means.dtype) for t, shape in
+             ((g_means2d, (*radii.shape, 2)), (g_conics, (*radii.shape, 3)), (g_depths, radii.shape))]
+        gm, gq, gs = load().project_backward(means, quats, scales, viewmats, Ks, radii, *g, *ctx.args)
+        return gm, gq, gs, None, None, None, None, None, None, None
+
+
+def project(means, quats, scales, viewmats, Ks, width: int, height: int, near_plane: float = 0.01,
+            far_plane: float = 1e10, eps2d: float = 0.3):
+    """``projection.project_gaussians`` in C++, in the dtype of ``means`` (float32 or float64): means2d
+    [C,N,2], conics [C,N,3], depths [C,N], radii [C,N] int32. Differentiable w.r.t. means, quats and scales
+    (not the cameras); a culled (camera, Gaussian) pair, radius 0, passes no gradient back."""
+    dtype = means.dtype if means.dtype in (torch.float32, torch.float64) else torch.float32
+    f = lambda t: t.to(dtype).contiguous()  # noqa: E731
+    means2d, conics, depths, radii = _Project.apply(f(means), f(quats), f(scales), f(viewmats), f(Ks), width, height,
+                                                    float(near_plane), float(far_plane), float(eps2d))
+    return means2d, conics, depths, radii
 
 
 class _Composite(torch.autograd.Function):

@@ -442,8 +442,3 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
           out.narrow(0, C * N * 5, C * N * 3).view({C, N, 3}), out.narrow(0, C * N * 9, N).clone(),
           out.narrow(0, C * N * 8, C * N).view({C, N})};
 }
-
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("forward", &forward, "tiled Gaussian compositing, forward");
-  m.def("backward", &backward, "tiled Gaussian compositing, backward");
-}

@@ -1,0 +1,25 @@
+// The Python module of the cpu backend: projection (project_cpu.cpp) and compositing (rasterize_cpu.cpp).
+#include <torch/extension.h>
+#include <vector>
+
+std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
+                                   torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii, int64_t W,
+                                   int64_t H, int64_t tile, bool want_contrib);
+std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
+                                    torch::Tensor opacities, torch::Tensor depths, torch::Tensor T_final,
+                                    torch::Tensor last, torch::Tensor offsets, torch::Tensor ids, torch::Tensor g_image,
+                                    torch::Tensor g_alpha, torch::Tensor g_depth, int64_t W, int64_t H, int64_t tile);
+std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
+                                           torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
+                                           double near, double far, double eps2d);
+std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
+                                            torch::Tensor viewmats, torch::Tensor Ks, torch::Tensor radii,
+                                            torch::Tensor g_m2d, torch::Tensor g_con, torch::Tensor g_dep, int64_t W,
+                                            int64_t H, double near, double far, double eps2d);
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("forward", &forward, "tiled Gaussian compositing, forward");
+  m.def("backward", &backward, "tiled Gaussian compositing, backward");
+  m.def("project_forward", &project_forward, "EWA projection, forward");
+  m.def("project_backward", &project_backward, "EWA projection, backward");
+}

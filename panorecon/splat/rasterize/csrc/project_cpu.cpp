@@ -1,0 +1,208 @@
+// EWA projection of 3D Gaussians into pinhole cameras on the CPU: forward and hand-written backward, parallel
+// over Gaussians. The same arithmetic as the PyTorch reference (projection.py), which defines the rules: near <
+// z < far; the Jacobian taken at the view direction clamped to the image's extent plus 30 % of the half field
+// of view; cov2d = J R rot(q) diag(s)^2 rot(q)^T R^T J^T + eps2d I; radius = ceil(3 sqrt(largest eigenvalue));
+// radius 0 marks a culled Gaussian. Templated on the scalar type (float for training, double for tests).
+// Backward: a culled (camera, Gaussian) pair gets no gradient, since the compositor never reads its outputs.
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace {
+
+template <typename T>
+struct Camera {
+  T R[9], t[3], fx, fy, cx, cy, lo_x, hi_x, lo_y, hi_y;
+  Camera(const T* V, const T* K, int64_t W, int64_t H) {
+    for (int r = 0; r < 3; ++r) {
+      for (int k = 0; k < 3; ++k) R[r * 3 + k] = V[r * 4 + k];
+      t[r] = V[r * 4 + 3];
+    }
+    fx = K[0]; fy = K[4]; cx = K[2]; cy = K[5];
+    const T tan_x = T(0.5) * W / fx, tan_y = T(0.5) * H / fy;
+    lo_x = -(cx / fx + T(0.3) * tan_x); hi_x = (W - cx) / fx + T(0.3) * tan_x;
+    lo_y = -(cy / fy + T(0.3) * tan_y); hi_y = (H - cy) / fy + T(0.3) * tan_y;
+  }
+};
+
+// Rotation matrix (row-major) of the normalised wxyz quaternion; a norm <= 1e-12 reads as the identity.
+template <typename T>
+inline void quat_rotmat(const T* q4, T* Rq, T* qn, T& norm) {
+  norm = std::sqrt(q4[0] * q4[0] + q4[1] * q4[1] + q4[2] * q4[2] + q4[3] * q4[3]);
+  if (norm > T(1e-12)) for (int k = 0; k < 4; ++k) qn[k] = q4[k] / norm;
+  else { qn[0] = 1; qn[1] = qn[2] = qn[3] = 0; }
+  const T w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+  Rq[0] = 1 - 2 * (y * y + z * z); Rq[1] = 2 * (x * y - w * z); Rq[2] = 2 * (x * z + w * y);
+  Rq[3] = 2 * (x * y + w * z); Rq[4] = 1 - 2 * (x * x + z * z); Rq[5] = 2 * (y * z - w * x);
+  Rq[6] = 2 * (x * z - w * y); Rq[7] = 2 * (y * z + w * x); Rq[8] = 1 - 2 * (x * x + y * y);
+}
+
+// The quantities of one (camera, Gaussian) pair that forward and backward share.
+template <typename T>
+struct Pair {
+  T p[3], zs, rx, ry, j00, j02, j11, j12, T0[3], T1[3], A0[3], A1[3], a, b, c, det;
+  bool z_ok;
+  void compute(const Camera<T>& cam, const T* m, const T* M, T near, T far, T eps2d) {
+    for (int r = 0; r < 3; ++r)
+      p[r] = cam.R[r * 3] * m[0] + cam.R[r * 3 + 1] * m[1] + cam.R[r * 3 + 2] * m[2] + cam.t[r];
+    z_ok = p[2] > near && p[2] < far;
+    zs = z_ok ? p[2] : T(1);
+    rx = std::min(std::max(p[0] / zs, cam.lo_x), cam.hi_x);
+    ry = std::min(std::max(p[1] / zs, cam.lo_y), cam.hi_y);
+    j00 = cam.fx / zs; j02 = -cam.fx * rx / zs; j11 = cam.fy / zs; j12 = -cam.fy * ry / zs;
+    for (int k = 0; k < 3; ++k) {
+      T0[k] = j00 * cam.R[k] + j02 * cam.R[6 + k];
+      T1[k] = j11 * cam.R[3 + k] + j12 * cam.R[6 + k];
+    }
+    for (int k = 0; k < 3; ++k) {
+      A0[k] = T0[0] * M[k] + T0[1] * M[3 + k] + T0[2] * M[6 + k];
+      A1[k] = T1[0] * M[k] + T1[1] * M[3 + k] + T1[2] * M[6 + k];
+    }
+    a = A0[0] * A0[0] + A0[1] * A0[1] + A0[2] * A0[2] + eps2d;
+    b = A0[0] * A1[0] + A0[1] * A1[1] + A0[2] * A1[2];
+    c = A1[0] * A1[0] + A1[1] * A1[1] + A1[2] * A1[2] + eps2d;
+    det = a * c - b * b;
+  }
+};
+
+template <typename T>
+void forward_impl(const T* means, const T* quats, const T* scales, const T* V, const T* K, int64_t C, int64_t N,
+                  int64_t W, int64_t H, T near, T far, T eps2d, T* m2d, T* con, T* dep, int32_t* rad) {
+  std::vector<Camera<T>> cams;
+  for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
+  at::parallel_for(0, N, 2048, [&](int64_t b0, int64_t e0) {
+    for (int64_t n = b0; n < e0; ++n) {
+      T Rq[9], qn[4], norm, M[9];
+      quat_rotmat(quats + n * 4, Rq, qn, norm);
+      for (int i = 0; i < 9; ++i) M[i] = Rq[i] * scales[n * 3 + i % 3];
+      for (int64_t c = 0; c < C; ++c) {
+        const Camera<T>& cam = cams[c];
+        Pair<T> P;
+        P.compute(cam, means + n * 3, M, near, far, eps2d);
+        const int64_t cn = c * N + n;
+        const bool ok = P.z_ok && P.det > 0;
+        const T det_s = ok ? P.det : T(1);
+        con[cn * 3] = P.c / det_s; con[cn * 3 + 1] = -P.b / det_s; con[cn * 3 + 2] = P.a / det_s;
+        const T mid = T(0.5) * (P.a + P.c);
+        const T lam = mid + std::sqrt(std::max(mid * mid - det_s, T(0.01)));
+        const T r = std::ceil(3 * std::sqrt(lam));
+        const T u = cam.fx * P.p[0] / P.zs + cam.cx, v = cam.fy * P.p[1] / P.zs + cam.cy;
+        m2d[cn * 2] = u; m2d[cn * 2 + 1] = v;
+        const bool on_image = u + r > 0 && u - r < W && v + r > 0 && v - r < H;
+        const bool keep = ok && on_image && std::isfinite(r);
+        dep[cn] = keep ? P.p[2] : T(0);
+        rad[cn] = keep ? (int32_t)r : 0;
+      }
+    }
+  });
+}
+
+template <typename T>
+void backward_impl(const T* means, const T* quats, const T* scales, const T* V, const T* K, const int32_t* rad,
+                   const T* g_m2d, const T* g_con, const T* g_dep, int64_t C, int64_t N, int64_t W, int64_t H, T near,
+                   T far, T eps2d, T* g_means, T* g_quats, T* g_scales) {
+  std::vector<Camera<T>> cams;
+  for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
+  at::parallel_for(0, N, 2048, [&](int64_t b0, int64_t e0) {
+    for (int64_t n = b0; n < e0; ++n) {
+      T Rq[9], qn[4], norm, M[9], gM[9] = {0}, gm[3] = {0};
+      bool any = false;
+      for (int64_t c = 0; c < C; ++c) any = any || rad[c * N + n] > 0;
+      if (!any) continue;  // outputs are zero-initialised
+      const T* s = scales + n * 3;
+      quat_rotmat(quats + n * 4, Rq, qn, norm);
+      for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
+      for (int64_t c = 0; c < C; ++c) {
+        const int64_t cn = c * N + n;
+        if (rad[cn] <= 0) continue;
+        const Camera<T>& cam = cams[c];
+        Pair<T> P;
+        P.compute(cam, means + n * 3, M, near, far, eps2d);  // z_ok and det > 0 hold: the pair was kept
+        const T z = P.zs, a = P.a, b = P.b, cc = P.c, d2 = P.det * P.det;
+        const T q0 = g_con[cn * 3], q1 = g_con[cn * 3 + 1], q2 = g_con[cn * 3 + 2];
+        // conic (c, -b, a) / det  ->  a, b, c
+        const T ga = (-cc * cc * q0 + b * cc * q1 - b * b * q2) / d2;
+        const T gb = (2 * b * cc * q0 - (a * cc + b * b) * q1 + 2 * a * b * q2) / d2;
+        const T gc = (-b * b * q0 + a * b * q1 - a * a * q2) / d2;
+        T gA0[3], gA1[3], gT0[3] = {0}, gT1[3] = {0};
+        for (int k = 0; k < 3; ++k) {
+          gA0[k] = 2 * ga * P.A0[k] + gb * P.A1[k];
+          gA1[k] = 2 * gc * P.A1[k] + gb * P.A0[k];
+        }
+        for (int i = 0; i < 3; ++i)
+          for (int k = 0; k < 3; ++k) {  // A0_k = sum_i T0_i M_ik
+            gT0[i] += gA0[k] * M[i * 3 + k];
+            gT1[i] += gA1[k] * M[i * 3 + k];
+            gM[i * 3 + k] += P.T0[i] * gA0[k] + P.T1[i] * gA1[k];
+          }
+        const T* R = cam.R;
+        const T g00 = gT0[0] * R[0] + gT0[1] * R[1] + gT0[2] * R[2], g02 = gT0[0] * R[6] + gT0[1] * R[7] + gT0[2] * R[8];
+        const T g11 = gT1[0] * R[3] + gT1[1] * R[4] + gT1[2] * R[5], g12 = gT1[0] * R[6] + gT1[1] * R[7] + gT1[2] * R[8];
+        T gp[3] = {0, 0, 0};
+        // j00 = fx / z, j02 = -fx rx / z with rx = clamp(x / z) (no gradient where the clamp holds); same for y
+        gp[2] += -cam.fx / (z * z) * g00 - cam.fy / (z * z) * g11 + cam.fx * P.rx / (z * z) * g02 + cam.fy * P.ry / (z * z) * g12;
+        const T grx = -cam.fx / z * g02, gry = -cam.fy / z * g12;
+        const T px = P.p[0] / z, py = P.p[1] / z;
+        if (px > cam.lo_x && px < cam.hi_x) { gp[0] += grx / z; gp[2] -= grx * px / z; }
+        if (py > cam.lo_y && py < cam.hi_y) { gp[1] += gry / z; gp[2] -= gry * py / z; }
+        // means2d = (fx x / z + cx, fy y / z + cy); depth = z
+        const T gu = g_m2d[cn * 2], gv = g_m2d[cn * 2 + 1];
+        gp[0] += gu * cam.fx / z; gp[1] += gv * cam.fy / z;
+        gp[2] += -(gu * cam.fx * px + gv * cam.fy * py) / z + g_dep[cn];
+        for (int j = 0; j < 3; ++j) gm[j] += R[j] * gp[0] + R[3 + j] * gp[1] + R[6 + j] * gp[2];
+      }
+      for (int j = 0; j < 3; ++j) g_means[n * 3 + j] = gm[j];
+      // M = Rq diag(s)
+      T G[9];
+      for (int k = 0; k < 3; ++k) g_scales[n * 3 + k] = gM[k] * Rq[k] + gM[3 + k] * Rq[3 + k] + gM[6 + k] * Rq[6 + k];
+      for (int i = 0; i < 9; ++i) G[i] = gM[i] * s[i % 3];
+      if (!(norm > T(1e-12))) continue;  // the identity stand-in has no gradient
+      const T w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+      T gq[4];
+      gq[0] = 2 * (-z * G[1] + y * G[2] + z * G[3] - x * G[5] - y * G[6] + x * G[7]);
+      gq[1] = 2 * (y * G[1] + z * G[2] + y * G[3] - 2 * x * G[4] - w * G[5] + z * G[6] + w * G[7] - 2 * x * G[8]);
+      gq[2] = 2 * (-2 * y * G[0] + x * G[1] + w * G[2] + x * G[3] + z * G[5] - w * G[6] + z * G[7] - 2 * y * G[8]);
+      gq[3] = 2 * (-2 * z * G[0] - w * G[1] + x * G[2] + w * G[3] - 2 * z * G[4] + y * G[5] + x * G[6] + y * G[7]);
+      const T dot = w * gq[0] + x * gq[1] + y * gq[2] + z * gq[3];  // through q / |q|
+      for (int k = 0; k < 4; ++k) g_quats[n * 4 + k] = (gq[k] - qn[k] * dot) / norm;
+    }
+  });
+}
+
+}  // namespace
+
+// -> means2d [C,N,2] (pixels), conics [C,N,3], depths [C,N] (camera z, 0 where culled), radii [C,N] int32.
+std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
+                                           torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
+                                           double near, double far, double eps2d) {
+  const int64_t C = viewmats.size(0), N = means.size(0);
+  auto o = means.options();
+  auto m2d = torch::empty({C, N, 2}, o), con = torch::empty({C, N, 3}, o), dep = torch::empty({C, N}, o);
+  auto rad = torch::empty({C, N}, o.dtype(torch::kInt32));
+  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project_forward", [&] {
+    forward_impl<scalar_t>(means.data_ptr<scalar_t>(), quats.data_ptr<scalar_t>(), scales.data_ptr<scalar_t>(),
+                           viewmats.data_ptr<scalar_t>(), Ks.data_ptr<scalar_t>(), C, N, W, H, (scalar_t)near,
+                           (scalar_t)far, (scalar_t)eps2d, m2d.data_ptr<scalar_t>(), con.data_ptr<scalar_t>(),
+                           dep.data_ptr<scalar_t>(), rad.data_ptr<int32_t>());
+  });
+  return {m2d, con, dep, rad};
+}
+
+// Gradients w.r.t. means [N,3], quats [N,4], scales [N,3] from those of means2d, conics and depths.
+std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
+                                            torch::Tensor viewmats, torch::Tensor Ks, torch::Tensor radii,
+                                            torch::Tensor g_m2d, torch::Tensor g_con, torch::Tensor g_dep, int64_t W,
+                                            int64_t H, double near, double far, double eps2d) {
+  const int64_t C = viewmats.size(0), N = means.size(0);
+  auto gm = torch::zeros_like(means), gq = torch::zeros_like(quats), gs = torch::zeros_like(scales);
+  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project_backward", [&] {
+    backward_impl<scalar_t>(means.data_ptr<scalar_t>(), quats.data_ptr<scalar_t>(), scales.data_ptr<scalar_t>(),
+                            viewmats.data_ptr<scalar_t>(), Ks.data_ptr<scalar_t>(), radii.data_ptr<int32_t>(),
+                            g_m2d.data_ptr<scalar_t>(), g_con.data_ptr<scalar_t>(), g_dep.data_ptr<scalar_t>(), C, N, W,
+                            H, (scalar_t)near, (scalar_t)far, (scalar_t)eps2d, gm.data_ptr<scalar_t>(),
+                            gq.data_ptr<scalar_t>(), gs.data_ptr<scalar_t>());
+  });
+  return {gm, gq, gs};
+}

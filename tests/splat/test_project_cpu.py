@@ -1,0 +1,100 @@
+"""The C++ projection (``cpu_backend.project``) against the PyTorch reference ``project_gaussians``: every output
+and the gradients of means, quats and scales, in float64 (to rounding) and float32 (to a stated tolerance)."""
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+from panorecon.splat.rasterize import cpu_backend, project_gaussians, rasterize
+
+pytestmark = pytest.mark.skipif(not cpu_backend.available(), reason="the C++ rasterizer could not be built here")
+
+
+def cameras(width, height, dtype):
+    Ks = torch.tensor(intrinsics_from_fov(width, height, 70.0), dtype=dtype)[None].repeat(3, 1, 1)
+    Ks[2, 0, 0] *= 40.0  # a telephoto camera (about 2° across): most Gaussians fall outside its image
+    Ks[2, 1, 1] *= 40.0
+    Vs = torch.stack([torch.tensor(look_at_viewmat(o, t), dtype=dtype) for o, t in
+                      (([0, 0, 0], [1, 0, 0]), ([0.2, -0.3, 0.1], [1, 0.4, -0.2]), ([0, 0, 0], [1, 0.1, 0]))])
+    return Vs, Ks
+
+
+def scene(n, seed, dtype):
+    """n Gaussians whose first seven (as far as n reaches) are the extreme cases named below."""
+    n_all, n = max(n, 7), n
+    g = torch.Generator().manual_seed(seed)
+    means = torch.stack([torch.rand(n_all, generator=g) * 4 - 0.5, torch.rand(n_all, generator=g) * 3 - 1.5,
+                         torch.rand(n_all, generator=g) * 2 - 1], -1).to(dtype)
+    quats = torch.randn(n_all, 4, generator=g).to(dtype)
+    scales = (torch.rand(n_all, 3, generator=g) * 0.3 + 1e-3).to(dtype)
+    means[0] = torch.tensor([0.011, 0.0, 0.0])     # at the near plane
+    means[1] = torch.tensor([-1.0, 0.0, 0.0])      # behind every camera
+    means[2] = torch.tensor([2.0, 9.0, 0.0])       # far off-axis: the clamped Jacobian
+    quats[3] = 0.0                                 # zero-norm quaternion: the identity
+    scales[4] = torch.tensor([1e-7, 1e-7, 1e-7])   # near-singular: the 2D covariance is eps2d I
+    scales[5] = torch.tensor([1e3, 1e3, 1e3])      # huge
+    scales[6] = torch.tensor([1e-7, 0.5, 0.5])     # a flat disc
+    return means[:n], quats[:n], scales[:n]
+
+
+def project_both(dtype, n=400, seed=0, width=48, height=32):
+    Vs, Ks = cameras(width, height, dtype)
+    leaves = {k: [t.clone().requires_grad_(True) for t in scene(n, seed, dtype)] for k in ("torch", "cpu")}
+    out_t = project_gaussians(*leaves["torch"], Vs, Ks, width, height)
+    out_c = cpu_backend.project(*leaves["cpu"], Vs, Ks, width, height)
+    kept = out_t[3] > 0
+    g = torch.Generator().manual_seed(seed + 1)
+    # the compositor never reads culled pairs, so their upstream gradients are zero in training as well
+    ups = [torch.randn(t.shape, generator=g, dtype=dtype) * (kept[..., None] if t.dim() == 3 else kept)
+           for t in out_t[:3]]
+    for out, key in ((out_t, "torch"), (out_c, "cpu")):
+        sum((o * u).sum() for o, u in zip(out[:3], ups)).backward()
+    return out_t, out_c, [t.grad for t in leaves["torch"]], [t.grad for t in leaves["cpu"]], kept
+
+
+def test_float64_matches_the_reference_to_rounding():
+    out_t, out_c, g_t, g_c, kept = project_both(torch.float64)
+    assert 50 < kept.sum() < kept.numel(), "the scene should have both kept and culled pairs"
+    assert not kept[:, 1].any() and kept[2].sum() < kept[0].sum()
+    assert torch.equal(out_c[3], out_t[3]), "radii"
+    for name, a, b in zip(("means2d", "conics", "depths"), out_c[:3], out_t[:3]):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-9, msg=name)
+    for name, a, b in zip(("means", "quats", "scales"), g_c, g_t):
+        assert b.abs().max() > 0
+        torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-9 * float(b.abs().max()), msg=f"gradient of {name}")
+    assert (g_c[1][3] == 0).all(), "the identity stand-in of a zero quaternion has no gradient"
+
+
+def test_float32_matches_the_reference():
+    out_t, out_c, g_t, g_c, kept = project_both(torch.float32)
+    assert torch.equal(out_c[3], out_t[3]), "radii"
+    for name, a, b in zip(("means2d", "conics", "depths"), out_c[:3], out_t[:3]):
+        a, b = a[kept], b[kept]  # culled pairs (behind the camera) hold placeholder values
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4, msg=name)
+    for name, a, b in zip(("means", "quats", "scales"), g_c, g_t):
+        scale = float(b.abs().max())
+        torch.testing.assert_close(a / scale, b / scale, rtol=1e-3, atol=2e-5, msg=f"gradient of {name}")
+        assert torch.isfinite(a).all()
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(1, 80), st.integers(0, 10_000), st.integers(4, 64), st.integers(4, 64))
+def test_random_scenes_and_image_sizes_agree(n, seed, width, height):
+    out_t, out_c, g_t, g_c, _ = project_both(torch.float64, n, seed, width, height)
+    assert torch.equal(out_c[3], out_t[3])
+    for a, b in zip((*out_c[:3], *g_c), (*out_t[:3], *g_t)):
+        assert torch.isfinite(a).all()
+        torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-9 * max(1.0, float(b.detach().abs().max())))
+
+
+def test_rasterize_uses_the_reference_projection_when_cameras_need_gradients():
+    """The C++ projection does not differentiate w.r.t. the cameras; with a camera that requires grad the
+    reference runs and the pose gradient arrives."""
+    Vs, Ks = cameras(24, 16, torch.float32)
+    means, quats, scales = scene(50, 3, torch.float32)
+    V = Vs[:1].clone().requires_grad_(True)
+    img, *_ = rasterize(means, quats, scales, torch.full((50,), 0.8), torch.rand(50, 3), V, Ks[:1], 24, 16,
+                        backend="cpu")
+    img.sum().backward()
+    assert V.grad is not None and V.grad.abs().max() > 0
