@@ -98,3 +98,20 @@ def test_rasterize_uses_the_reference_projection_when_cameras_need_gradients():
                         backend="cpu")
     img.sum().backward()
     assert V.grad is not None and V.grad.abs().max() > 0
+
+
+def test_radius_is_capped_for_enormous_gaussians():
+    """A Gaussian of 1e8 m two metres away is kept with radius 2^30 px by both projections (not an undefined
+    int32 conversion), and both backends render the image it fills alike."""
+    Vs, Ks = cameras(24, 16, torch.float32)
+    means = torch.tensor([[2.0, 0.0, 0.0], [3.0, 0.1, 0.0]])
+    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2)
+    scales = torch.tensor([[1e8, 1e8, 1e8], [0.05, 0.05, 0.05]])  # 3 sigma: about 2.5e9 px
+    for project in (project_gaussians, cpu_backend.project):
+        radii = project(means, quats, scales, Vs[:1], Ks[:1], 24, 16)[3]
+        assert radii[0, 0] == 2**30 and 0 < radii[0, 1] < 100
+    opac, cols = torch.tensor([0.5, 0.9]), torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    img_t = rasterize(means, quats, scales, opac, cols, Vs[:1], Ks[:1], 24, 16, backend="torch")[0]
+    img_c = rasterize(means, quats, scales, opac, cols, Vs[:1], Ks[:1], 24, 16, backend="cpu")[0]
+    assert torch.isfinite(img_c).all() and img_c[..., 0].min() > 0.4
+    torch.testing.assert_close(img_c, img_t, atol=2e-5, rtol=1e-3)

@@ -3,8 +3,9 @@
 Cameras: world-to-camera ``viewmats`` [C, 4, 4] in OpenCV axes and ``Ks`` [C, 3, 3] with pixel (i, j) centred
 at (j + 0.5, i + 0.5). A Gaussian is kept in a camera when near < z < far; its 2D covariance is
 J W Sigma W^T J^T + eps2d * I (eps2d = 0.3 px^2 low-pass, as in 3DGS and gsplat), with the Jacobian taken at
-the mean's view direction clamped to the image's extent plus 30 % of the half field of view (gsplat's rule, which keeps Gaussians far
-outside the image from exploding). radius = ceil(3 sqrt(largest eigenvalue)); radius 0 marks a culled one.
+the mean's view direction clamped to the image's extent plus 30 % of the half field of view (gsplat's rule,
+which keeps Gaussians far outside the image from exploding). radius = ceil(3 sqrt(largest eigenvalue)), at
+most 2^30 px; radius 0 marks a culled one.
 """
 from __future__ import annotations
 
@@ -66,5 +67,6 @@ def project_gaussians(means, quats, scales, viewmats, Ks, width: int, height: in
     on_image = ((means2d[..., 0] + radii > 0) & (means2d[..., 0] - radii < width)
                 & (means2d[..., 1] + radii > 0) & (means2d[..., 1] - radii < height))
     valid = valid & on_image.detach() & torch.isfinite(radii)
-    radii = torch.where(valid, radii, torch.zeros_like(radii)).to(torch.int32)
+    # capped at 2^30 px so that the int32 conversion is defined for any finite radius
+    radii = torch.where(valid, radii.clamp_max(2.0**30), torch.zeros_like(radii)).to(torch.int32)
     return means2d, conics, torch.where(valid, z, torch.zeros_like(z)), radii

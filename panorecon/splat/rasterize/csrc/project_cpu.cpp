@@ -1,8 +1,9 @@
 // EWA projection of 3D Gaussians into pinhole cameras on the CPU: forward and hand-written backward, parallel
 // over Gaussians. The same arithmetic as the PyTorch reference (projection.py), which defines the rules: near <
 // z < far; the Jacobian taken at the view direction clamped to the image's extent plus 30 % of the half field
-// of view; cov2d = J R rot(q) diag(s)^2 rot(q)^T R^T J^T + eps2d I; radius = ceil(3 sqrt(largest eigenvalue));
-// radius 0 marks a culled Gaussian. Templated on the scalar type (float for training, double for tests).
+// of view; cov2d = J R rot(q) diag(s)^2 rot(q)^T R^T J^T + eps2d I; radius = ceil(3 sqrt(largest
+// eigenvalue)), at most 2^30 px; radius 0 marks a culled Gaussian. Templated on the scalar type (float for
+// training, double for tests).
 // Backward: a culled (camera, Gaussian) pair gets no gradient, since the compositor never reads its outputs.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
@@ -93,7 +94,7 @@ void forward_impl(const T* means, const T* quats, const T* scales, const T* V, c
         const bool on_image = u + r > 0 && u - r < W && v + r > 0 && v - r < H;
         const bool keep = ok && on_image && std::isfinite(r);
         dep[cn] = keep ? P.p[2] : T(0);
-        rad[cn] = keep ? (int32_t)r : 0;
+        rad[cn] = keep ? (int32_t)std::min(r, T(1 << 30)) : 0;  // the cap keeps the conversion defined
       }
     }
   });
