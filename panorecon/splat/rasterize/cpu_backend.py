@@ -8,6 +8,8 @@ float32; the projection runs in the inputs' dtype (float32 in training, float64 
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import logging
 import os
 from pathlib import Path
@@ -27,6 +29,24 @@ def build_dir() -> Path:
     return d
 
 
+@contextlib.contextmanager
+def _exclusive_build(directory: Path):
+    """Hold an ``flock`` on ``directory/build.flock`` while torch builds there, and remove torch's own ``lock``
+    file first if one is present. torch's lock (a FileBaton) is a plain file that a killed build leaves behind,
+    after which every later load waits on it forever; the flock is released by the kernel when its holder dies,
+    so a ``lock`` file found while holding it was left by a dead process."""
+    with open(directory / "build.flock", "w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            stale = directory / "lock"
+            if stale.exists():
+                log.warning("removing %s, left by an interrupted build", stale)
+                stale.unlink(missing_ok=True)
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 def load(verbose: bool = False):
     """The compiled module, or None (with the reason logged once) when it cannot be built here."""
     global _module, _error
@@ -35,8 +55,10 @@ def load(verbose: bool = False):
     try:
         from torch.utils.cpp_extension import load as load_ext
 
-        _module = load_ext(name="panorecon_rasterize_cpu", sources=[str(p) for p in _SOURCES], build_directory=str(build_dir()),
-                           extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"], extra_ldflags=["-fopenmp"], verbose=verbose)
+        directory = build_dir()
+        with _exclusive_build(directory):
+            _module = load_ext(name="panorecon_rasterize_cpu", sources=[str(p) for p in _SOURCES], build_directory=str(directory),
+                               extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"], extra_ldflags=["-fopenmp"], verbose=verbose)
     except Exception as e:  # a missing compiler or headers: fall back to the reference
         _error = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
         log.warning("cpu rasterizer unavailable (%s); the torch reference backend runs instead", _error)
