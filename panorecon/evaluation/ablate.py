@@ -38,6 +38,9 @@ def _points_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
 
 
 def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
+    from ..splat.rasterize import cpu_backend
+
+    cpu_backend.load()  # a one-off build (or the wait for another worker's) is install time, not the stage's
     row, points_key, train_key = task
     return run_train(StageCache(cache_root), row, key=train_key, points_key=points_key)
 

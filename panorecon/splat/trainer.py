@@ -105,7 +105,8 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     seconds = {}
-    backend = resolve_backend(cfg.backend)
+    backend = resolve_backend(cfg.backend)  # on first use this loads (or builds) the C++ backend
+    seconds["backend"] = time.perf_counter() - t0
     t = time.perf_counter()
     labels = make_pseudo_labels(scene, cfg.labels, cfg.res, cfg.fov_deg, cfg.layout, depth_fn)
     heldout = make_heldout_views(scene, cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed) if scene.world is not None and cfg.heldout else []

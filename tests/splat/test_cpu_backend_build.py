@@ -14,25 +14,24 @@ def test_a_lock_left_by_a_killed_build_is_removed_before_building(tmp_path, monk
     monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))
     monkeypatch.setattr(cpu_backend, "_module", None)
     monkeypatch.setattr(cpu_backend, "_error", None)
-    stale = tmp_path / "torch_extensions" / "lock"
-    stale.parent.mkdir(parents=True)
+    stale = cpu_backend.build_dir() / "lock"
     stale.touch()  # what torch's FileBaton leaves when its process is killed mid-build
     seen = {}
 
     def fake_load(name, sources, build_directory, **kwargs):
-        seen["lock_present"] = (tmp_path / "torch_extensions" / "lock").exists()
+        seen["lock_present"] = stale.exists()
         seen["directory"] = build_directory
         return "module"
 
     monkeypatch.setattr(torch.utils.cpp_extension, "load", fake_load)
     assert cpu_backend.load() == "module"
-    assert seen == {"lock_present": False, "directory": str(tmp_path / "torch_extensions")}
+    assert seen == {"lock_present": False, "directory": str(stale.parent)}
 
 
 def test_a_build_in_progress_in_another_process_is_waited_for_not_broken(tmp_path, monkeypatch):
     """While another live process holds the build lock, its torch ``lock`` file is left alone: load waits."""
-    directory = tmp_path / "torch_extensions"
-    directory.mkdir()
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))
+    directory = cpu_backend.build_dir()
     holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
         import fcntl, pathlib, sys, time
         d = pathlib.Path({str(directory)!r})
@@ -43,7 +42,6 @@ def test_a_build_in_progress_in_another_process_is_waited_for_not_broken(tmp_pat
         """)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "holding"
-        monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))
         monkeypatch.setattr(cpu_backend, "_module", None)
         monkeypatch.setattr(cpu_backend, "_error", None)
         order = []
@@ -63,3 +61,13 @@ def test_a_build_in_progress_in_another_process_is_waited_for_not_broken(tmp_pat
         assert order == ["released", "load", "module"]
     finally:
         holder.kill(); holder.wait()
+
+
+def test_each_checkout_builds_in_its_own_directory(tmp_path, monkeypatch):
+    """Two checkouts sharing one cache must not rebuild over each other's sources on every load."""
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))
+    here = cpu_backend.build_dir()
+    other = [tmp_path / "other_checkout" / "csrc" / p.name for p in cpu_backend._SOURCES]
+    monkeypatch.setattr(cpu_backend, "_SOURCES", other)
+    there = cpu_backend.build_dir()
+    assert here != there and here.parent == there.parent == tmp_path / "torch_extensions"

@@ -39,6 +39,8 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     assert after["pseudo-label"]["lpips"].startswith("n/a")
     m = json.loads((tmp_path / "b" / "metrics.json").read_text())
     assert {"seconds", "iterations", "gaussians", "peak_rss_mb", "history"} <= set(m)
+    assert {"backend", "labels", "train", "eval", "total"} <= set(m["seconds"])
+    assert sum(m["seconds"][k] for k in ("backend", "labels", "train", "eval")) <= m["seconds"]["total"]
     assert (tmp_path / "b" / "renders" / "label_0.png").is_file() and not (tmp_path / "b" / "ckpt.pt").exists()
     assert len(load_ply(tmp_path / "b" / "point_cloud.ply")) == after["gaussians"]
 

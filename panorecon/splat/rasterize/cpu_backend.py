@@ -1,7 +1,7 @@
 """The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians) and tiled compositing
 (csrc/rasterize_cpu.cpp, parallel over tiles) in C++ with hand-written backwards, through ATen's thread pool
 (OpenMP). Built with torch.utils.cpp_extension on first use
-(or ahead of time by ``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions``
+(or ahead of time by ``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions/<checkout>``
 (default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the two hot
 compositing functions are built twice (AVX2 and baseline x86-64) and the loader picks by CPU. Compositing is
 float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import logging
 import os
 from pathlib import Path
@@ -23,8 +24,11 @@ _error: str | None = None
 
 
 def build_dir() -> Path:
+    """``$PANORECON_CACHE/torch_extensions/<hash of this checkout's csrc path>``: one build per checkout, so two
+    checkouts (a clone for CI beside a working tree) do not rebuild over each other's sources on every load."""
     root = Path(os.environ.get("PANORECON_CACHE", Path.home() / ".cache" / "panorecon"))
-    d = root / "torch_extensions"
+    checkout = hashlib.sha1(str(_SOURCES[0].parent.resolve()).encode()).hexdigest()[:12]
+    d = root / "torch_extensions" / checkout
     d.mkdir(parents=True, exist_ok=True)
     return d
 
