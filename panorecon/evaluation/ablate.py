@@ -34,7 +34,7 @@ def _init_worker(threads: int) -> None:
 
 def _points_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
     row, points_key, _ = task
-    return run_points(StageCache(cache_root), row, points_key)
+    return run_points(StageCache(cache_root), row, points_key, provenance={"commit": environment()["commit"]})
 
 
 def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
@@ -42,7 +42,8 @@ def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
 
     cpu_backend.load()  # a one-off build (or the wait for another worker's) is install time, not the stage's
     row, points_key, train_key = task
-    return run_train(StageCache(cache_root), row, key=train_key, points_key=points_key)
+    return run_train(StageCache(cache_root), row, key=train_key, points_key=points_key,
+                     provenance={"commit": environment()["commit"]})
 
 
 def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str,
@@ -118,7 +119,7 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
     if "unavailable" in pts:
         return {"label": row.label, "scene": row.scene, "width": row.width, "source": row.source,
                 "teacher": row.teacher, **row.extra, "unavailable_note": pts["unavailable"], "cached": "none",
-                "commit": env["commit"]}
+                "commit": pts.get("commit", "unrecorded")}
     rep = pts["report"]
     depth = rep.get("depth") if isinstance(rep.get("depth"), dict) else {}
     points = rep.get("points", {})
@@ -152,5 +153,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
         peak = max(peak, tr["peak_rss_mb"])
     rec.update(sec_total=seconds_total, peak_mb=peak, cached=",".join(
         s for s, c in (("points", points_cached), ("train", train_cached)) if c) or "none",
-        commit=env["commit"], **{f"version_{k}": v for k, v in env["versions"].items()})
+        # the commit of the run that computed the row's last stage; a cache written before commits were stored
+        # has none
+        commit=(tr if tr is not None else pts).get("commit", "unrecorded"),
+        **{f"version_{k}": v for k, v in env["versions"].items()})
     return rec

@@ -98,10 +98,11 @@ def teacher_depth_fn(scene, teacher_spec: str | None):
     return depth_fn
 
 
-def run_points(cache: StageCache, row: Row, key: str | None = None) -> dict:
+def run_points(cache: StageCache, row: Row, key: str | None = None, provenance: dict | None = None) -> dict:
     """The point source's record: report, seconds, peak_rss_mb, cached (bool); cloud.ply in its folder.
     ``key``: the stage key as the caller computed it (a run keeps the keys it started with even if the code
-    changes meanwhile); default ``row.points_key()``."""
+    changes meanwhile); default ``row.points_key()``. ``provenance`` (e.g. the commit) is stored in the record
+    when the stage is computed, so a cached result keeps the provenance of the run that made it."""
     key = key or row.points_key()
     done = cache.done("points", key)
     if done is not None:
@@ -118,19 +119,20 @@ def run_points(cache: StageCache, row: Row, key: str | None = None) -> dict:
         if not str(e).startswith("n/a"):
             raise
         record = {"stage": "points", "key": key, "unavailable": str(e), "scene_seconds": scene_s,
-                  "seconds": time.perf_counter() - t, "peak_rss_mb": peak_rss_mb()}
+                  "seconds": time.perf_counter() - t, "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
         return {**cache.finish("points", key, record), "cached": False}
     folder = cache.folder("points", key)
     pc.save_ply(folder / "cloud.ply")
     write_json(folder / "report.json", report)
     record = {"stage": "points", "key": key, "report": report, "scene_seconds": scene_s,
-              "seconds": report["seconds"]["total"], "peak_rss_mb": peak_rss_mb(), "points": len(pc)}
+              "seconds": report["seconds"]["total"], "peak_rss_mb": peak_rss_mb(), "points": len(pc), **(provenance or {})}
     return {**cache.finish("points", key, record), "cached": False}
 
 
 def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | None = None,
-              points_key: str | None = None) -> dict:
-    """The trainer's record: metrics (metrics.json), seconds, peak_rss_mb, cached; resumes an interrupted run."""
+              points_key: str | None = None, provenance: dict | None = None) -> dict:
+    """The trainer's record: metrics (metrics.json), seconds, peak_rss_mb, cached; resumes an interrupted run.
+    ``provenance`` as in :func:`run_points`."""
     key = key or row.train_key()
     done = cache.done("train", key)
     if done is not None:
@@ -138,7 +140,7 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
     from ..geometry import PointCloud
     from ..splat.trainer import TrainConfig, train
 
-    points = run_points(cache, row, points_key)
+    points = run_points(cache, row, points_key, provenance)
     if "unavailable" in points:  # nothing to train from; the row reads n/a with the source's reason
         return {"stage": "train", "key": key, "unavailable": points["unavailable"], "cached": False}
     scene = load_row_scene(row.scene, row.width, cache)
@@ -146,5 +148,5 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
                     teacher_depth_fn(scene, row.teacher), progress=progress)
     record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
-              "peak_rss_mb": peak_rss_mb()}
+              "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
     return {**cache.finish("train", key, record), "cached": False}

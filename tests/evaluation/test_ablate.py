@@ -55,6 +55,19 @@ def test_second_run_reads_everything_from_the_cache(first_run):
     pd.testing.assert_series_equal(again["psnr_pl"], frame["psnr_pl"])
 
 
+def test_a_cached_row_keeps_the_commit_of_the_run_that_computed_it(first_run):
+    d, suite, frame = first_run
+    from panorecon.evaluation.ablate import result_row
+    from panorecon.pipeline import StageCache
+
+    cache = StageCache(d / "out" / "cache")
+    row = suite.rows[0]
+    pts, tr = cache.done("points", row.points_key()), cache.done("train", row.train_key())
+    assert pts["commit"] == tr["commit"] == frame.loc[0, "commit"]
+    later = result_row(row, pts, tr, {"commit": "a later commit", "versions": {}}, True, True)
+    assert later["commit"] == tr["commit"]
+
+
 def test_dask_engine_gives_the_same_points(first_run, tmp_path):
     d, _, frame = first_run
     (tmp_path / "pts.toml").write_text(TINY.replace("iters = 8", "train = false"))
