@@ -116,9 +116,15 @@ def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabe
     ax_mean.set(xlabel=f"{x} (seconds, log; mean over scenes)", ylabel=f"{ylabel}, mean over scenes", xscale="log",
                 title="averaged")
     ax_mean.legend(fontsize=8)
-    for ax in (ax_runs, ax_mean):  # plain seconds on the log axis (matplotlib's default writes 2.2×10¹)
-        ax.xaxis.set_major_formatter(matplotlib.ticker.LogFormatter(labelOnlyBase=False))
-        ax.xaxis.set_minor_formatter(matplotlib.ticker.LogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
+    class PlainLogFormatter(matplotlib.ticker.LogFormatter):
+        """LogFormatter's choice of which ticks to label, written as plain numbers (0.3, 20) not 3e-01 or 2×10¹."""
+
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
+
+    for ax in (ax_runs, ax_mean):
+        ax.xaxis.set_major_formatter(PlainLogFormatter(labelOnlyBase=False))
+        ax.xaxis.set_minor_formatter(PlainLogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
     fig.suptitle(title)
     fig.tight_layout()
     with atomic_write(path, suffix=".png") as tmp:
