@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..io import atomic_write
 from ..pipeline import Row, StageCache, run_points, run_train
-from .environment import environment
+from .environment import environment, git_commit
 from .suite import Suite
 
 ENGINES = ("local", "dask")
@@ -34,7 +34,7 @@ def _init_worker(threads: int) -> None:
 
 def _points_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
     row, points_key, _ = task
-    return run_points(StageCache(cache_root), row, points_key, provenance={"commit": environment()["commit"]})
+    return run_points(StageCache(cache_root), row, points_key, provenance={"commit": git_commit()})
 
 
 def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
@@ -43,7 +43,7 @@ def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
     cpu_backend.load()  # a one-off build (or the wait for another worker's) is install time, not the stage's
     row, points_key, train_key = task
     return run_train(StageCache(cache_root), row, key=train_key, points_key=points_key,
-                     provenance={"commit": environment()["commit"]})
+                     provenance={"commit": git_commit()})
 
 
 def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str,

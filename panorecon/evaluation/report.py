@@ -116,6 +116,7 @@ def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabe
     ax_mean.set(xlabel=f"{x} (seconds, log; mean over scenes)", ylabel=f"{ylabel}, mean over scenes", xscale="log",
                 title="averaged")
     ax_mean.legend(fontsize=8)
+
     class PlainLogFormatter(matplotlib.ticker.LogFormatter):
         """LogFormatter's choice of which ticks to label, written as plain numbers (0.3, 20) not 3e-01 or 2×10¹."""
 

@@ -33,7 +33,7 @@ def test_a_build_in_progress_in_another_process_is_waited_for_not_broken(tmp_pat
     monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))
     directory = cpu_backend.build_dir()
     holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
-        import fcntl, pathlib, sys, time
+        import fcntl, pathlib, sys
         d = pathlib.Path({str(directory)!r})
         h = open(d / "build.flock", "w"); fcntl.flock(h, fcntl.LOCK_EX)
         (d / "lock").touch(); print("holding", flush=True)

@@ -39,16 +39,13 @@ def _exclusive_build(directory: Path):
     file first if one is present. torch's lock (a FileBaton) is a plain file that a killed build leaves behind,
     after which every later load waits on it forever; the flock is released by the kernel when its holder dies,
     so a ``lock`` file found while holding it was left by a dead process."""
-    with open(directory / "build.flock", "w") as handle:
+    with open(directory / "build.flock", "w") as handle:  # closing the file releases the flock
         fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            stale = directory / "lock"
-            if stale.exists():
-                log.warning("removing %s, left by an interrupted build", stale)
-                stale.unlink(missing_ok=True)
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+        stale = directory / "lock"
+        if stale.exists():
+            log.warning("removing %s, left by an interrupted build", stale)
+            stale.unlink(missing_ok=True)
+        yield
 
 
 def load(verbose: bool = False):
