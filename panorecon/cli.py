@@ -18,6 +18,14 @@ log = logging.getLogger("panorecon")
 def cmd_scenes_list(args) -> int:
     from .scenes import list_scenes
 
+    if getattr(args, "root", None):
+        from .scenes.datasets import list_root
+
+        found = list_root(Path(args.root))
+        for name, desc in found:
+            print(f"{name}  ({desc.split(',')[0]})")
+        print(f"{len(found)} panoramas with true depth under {args.root}")
+        return 0
     rows = [(s.name, s.kind, "yes" if s.has_ground_truth else "no", s.description) for s in list_scenes()]
     w = max(len(r[0]) for r in rows)
     print(f"{'name':<{w}}  {'kind':<9}  {'truth':<5}  description")
@@ -30,10 +38,10 @@ def cmd_render(args) -> int:
     import numpy as np
 
     from .io import save_npy, write_image
-    from .scenes import load_scene
+    from .scenes import scene_from_args
 
     t0 = time.perf_counter()
-    scene = load_scene(args.scene, args.width)
+    scene = scene_from_args(args)
     seconds = time.perf_counter() - t0
     out = Path(args.out)
     write_image(out / "pano.png", scene.rgb)
@@ -47,9 +55,9 @@ def cmd_render(args) -> int:
 
 
 def cmd_gt_cloud(args) -> int:
-    from .scenes import load_scene
+    from .scenes import scene_from_args
 
-    scene = load_scene(args.scene, args.width)
+    scene = scene_from_args(args)
     if scene.distance is None:
         raise PanoreconInputError(f"scene {scene.name!r} has no depth, so it has no ground-truth cloud")
     if not scene.has_ground_truth:
@@ -85,8 +93,9 @@ def cmd_demo(args) -> int:
 
     out = Path(args.out)
     scene = args.scene or DEFAULT_SCENE
-    cmd_render(argparse.Namespace(scene=scene, out=str(out), width=args.width))
-    cmd_gt_cloud(argparse.Namespace(scene=scene, out=str(out / "gt_cloud.ply"), width=args.width))
+    depth = {k: getattr(args, k) for k in DEPTH_OPTIONS}
+    cmd_render(argparse.Namespace(scene=scene, out=str(out), width=args.width, **depth))
+    cmd_gt_cloud(argparse.Namespace(scene=scene, out=str(out / "gt_cloud.ply"), width=args.width, **depth))
     from .geometry import PointCloud
 
     gt = PointCloud.load_ply(out / "gt_cloud.ply")
@@ -97,8 +106,7 @@ def cmd_demo(args) -> int:
                                    color=None, point_size=2.0, clip_z=clip_z))
     cmd_train(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, width=args.width,
                                  iters=args.iters, res=64, labels=120, backend=None, strategy=None, seed=None,
-                                 no_progress=False,
-                                 out=str(out)))
+                                 no_progress=False, out=str(out), **depth))
     cmd_inspect(argparse.Namespace(cloud=str(out / "fibonacci_cloud.ply"), screenshot=str(out / "fibonacci_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
     return 0
@@ -123,11 +131,15 @@ def cmd_sources_list(args) -> int:
 
 def _initial_cloud(args, scene, cloud_path, report_path):
     """Run the point source, write its cloud (and report) and print one summary line -> (PointCloud, report)."""
-    from .io import write_json
+    from .io import save_npy, write_json
     from .sources import run_source
 
     pc, report = run_source(scene, args.source, args.teacher, args.views, view_size=getattr(args, "view_size", None))
     pc.save_ply(cloud_path)
+    if getattr(args, "distance_out", None):
+        if pc.meta.get("erp_distance") is None:
+            raise PanoreconInputError(f"--distance-out {args.distance_out}: source {args.source!r} gives no ERP distance")
+        save_npy(args.distance_out, pc.meta["erp_distance"])
     if report_path:
         write_json(report_path, report)
     depth = report.get("depth")
@@ -141,11 +153,11 @@ def _initial_cloud(args, scene, cloud_path, report_path):
 
 
 def cmd_points(args) -> int:
-    from .scenes import load_scene
+    from .scenes import scene_from_args
     from .sources import get_source
 
     get_source(args.source)  # an unknown source fails before the scene is rendered
-    _initial_cloud(args, load_scene(args.scene, args.width), args.out, args.report)
+    _initial_cloud(args, scene_from_args(args), args.out, args.report)
     return 0
 
 
@@ -153,10 +165,10 @@ def cmd_train(args) -> int:
     import dataclasses
 
     from .pipeline import teacher_depth_fn
-    from .scenes import load_scene
+    from .scenes import scene_from_args
     from .splat.trainer import TrainConfig, train
 
-    scene = load_scene(args.scene, args.width)
+    scene = scene_from_args(args)
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
@@ -199,7 +211,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes").add_subparsers(dest="what", required=True)
-    scenes.add_parser("list", help="name, synthetic or real, ground truth, description").set_defaults(fn=cmd_scenes_list)
+    sc = scenes.add_parser("list", help="name, synthetic or real, ground truth, description")
+    sc.add_argument("--root", default=None, help="list instead the dataset panoramas (Stanford2D3D, Structured3D, "
+                    "Matterport3D) found under this folder, as scene names")
+    sc.set_defaults(fn=cmd_scenes_list)
 
     r = sub.add_parser("render", help="write pano.png, distance.npy (float32 metres, inf = sky) and mask.png")
     r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
@@ -235,6 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("--width", type=int, default=None, help="ERP width")
     pt.add_argument("--out", required=True, help="output .ply")
     pt.add_argument("--report", default=None, help="output report .json")
+    pt.add_argument("--distance-out", default=None, help="also write the fused ERP ray distance (.npy, float32 metres)")
     pt.set_defaults(fn=cmd_points)
 
     tr = sub.add_parser("train", help="fit Gaussians from a point source to the scene's pseudo-labels")
@@ -287,7 +303,23 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--teacher", default="sim:relative", help="depth teacher for the method's point cloud")
     d.add_argument("--iters", type=int, default=300, help="training steps (64 px labels)")
     d.set_defaults(fn=cmd_demo)
+
+    for command in ("render", "gt-cloud", "points", "train", "export", "demo"):  # every command that takes a SCENE
+        _add_depth_options(sub.choices[command])
     return p
+
+
+DEPTH_OPTIONS = ("depth", "depth_scale", "depth_kind")
+
+
+def _add_depth_options(parser: argparse.ArgumentParser) -> None:
+    """--depth / --depth-scale / --depth-kind: a real panorama's true depth (see panorecon.io.depth)."""
+    g = parser.add_argument_group("true depth of a real panorama")
+    g.add_argument("--depth", default=None, help="true depth file (16-bit .png, .exr, .npy) of the same size as the image")
+    g.add_argument("--depth-scale", type=float, default=None,
+                   help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)")
+    g.add_argument("--depth-kind", choices=("distance", "z"), default="distance",
+                   help="distance along the ray (default) or cube-face z-depth")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -133,10 +133,10 @@ def add_export_parser(subparsers) -> None:
 
 def run_export(args) -> int:
     """Build the cloud with ``run_source`` and export it with the labels; print one summary line -> 0."""
-    from .scenes import load_scene
+    from .scenes import scene_from_args
     from .sources import run_source
 
-    scene = load_scene(args.scene, args.width)
+    scene = scene_from_args(args)
     cloud, report = run_source(scene, args.source, args.teacher, args.views)
     out = export_scene(scene, cloud, args.labels, args.format, args.out, args.res, args.fov, args.image_format,
                        args.overwrite)

@@ -1,15 +1,31 @@
-"""Real panoramas from ``shared/data/real`` (and any ERP image by path) as ``Scene``s."""
+"""Real panoramas from ``shared/data/real`` (and any ERP image by path) as ``Scene``s, with a depth file
+attached either as a model's prediction (the built-in HoHoNet scene) or as true depth (``--depth``)."""
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from ..io import PanoreconInputError, read_image
+from ..io.depth import read_erp_depth
 from .base import Scene
 from .registry import SceneSpec, register_scene
+
+
+@dataclass(frozen=True)
+class DepthSpec:
+    """A depth file for a panorama: ``path``; ``scale`` metres per stored unit (None: the format's default,
+    see ``panorecon.io.depth``); ``kind`` "distance" (along the ray) or "z" (cube-face z-depth);
+    ``truth``: true depth (a sensor, a scanner, a dataset) rather than a model's prediction."""
+
+    path: Path
+    scale: float | None = None
+    kind: str = "distance"
+    truth: bool = True
+    source: str = ""
 
 
 def real_data_dir() -> Path:
@@ -27,31 +43,33 @@ def _resize(img: np.ndarray, width: int | None, interpolation=cv2.INTER_AREA) ->
 
 
 def scene_from_image(path: Path, width: int | None = None, *, name: str | None = None,
-                     description: str = "", depth_path: Path | None = None, depth_scale: float = 1.0,
-                     depth_from: str = "") -> Scene:
-    """A real scene from an ERP image file; ``depth_path`` (optional) is a 16-bit PNG of ray distance
-    in units of ``depth_scale`` metres (0 = unknown), resized with nearest neighbour."""
-    rgb = _resize(read_image(path, erp=True), width)
-    distance = None
-    kind = "none"
-    if depth_path is not None:
-        raw = read_image(depth_path, erp=True, unchanged=True)
-        if raw.ndim != 2:
-            raise PanoreconInputError(f"{depth_path}: expected a single-channel depth image, got {raw.shape[2]} channels")
-        d = raw.astype(np.float32) * np.float32(depth_scale)
-        d[raw == 0] = np.nan
-        distance = _resize(d, rgb.shape[1], cv2.INTER_NEAREST)
-        kind = "predicted"
-    return Scene(
-        name=name or path.stem,
-        kind="real",
-        description=description or f"equirectangular image {path}",
-        rgb=rgb,
-        distance=distance,
-        sky=np.zeros(rgb.shape[:2], bool),
-        distance_kind=kind,
-        meta={"image": str(path), **({"depth": str(depth_path), "depth_from": depth_from} if depth_path else {})},
-    )
+                     description: str = "", depth: DepthSpec | None = None, meta: dict | None = None) -> Scene:
+    """A real scene from an ERP image file and, optionally, its depth file (same pixel size as the image;
+    resized to ``width`` with nearest neighbour). The depth is "truth" or "predicted" as ``depth.truth`` says."""
+    full = read_image(path, erp=True)
+    scene = Scene(name=name or Path(path).stem, kind="real", description=description or f"equirectangular image {path}",
+                  rgb=_resize(full, width), distance=None, sky=np.zeros((1, 1), bool), distance_kind="none",
+                  meta={"image": str(path), "image_hw": list(full.shape[:2]), **(meta or {})})
+    scene.sky = np.zeros(scene.rgb.shape[:2], bool)
+    return with_depth(scene, depth) if depth is not None else scene
+
+
+def with_depth(scene: Scene, depth: DepthSpec) -> Scene:
+    """``scene`` with ``depth`` as its distance (resized like its image). A depth file of another pixel size than
+    the image file (``meta["image_hw"]``), or one without a valid pixel, is refused."""
+    if scene.kind == "synthetic":
+        raise PanoreconInputError(f"--depth {depth.path}: scene {scene.name!r} is synthetic and already has its "
+                                  "true depth; --depth is for real panoramas")
+    d = read_erp_depth(depth.path, depth.scale, depth.kind)
+    hw = tuple(scene.meta.get("image_hw", scene.rgb.shape[:2]))
+    if d.shape != hw:
+        raise PanoreconInputError(f"{depth.path}: depth is {d.shape[1]}x{d.shape[0]} but the panorama "
+                                  f"{scene.meta.get('image', scene.name)} is {hw[1]}x{hw[0]}; expected the same size")
+    scene.distance = _resize(d, scene.width, cv2.INTER_NEAREST)
+    scene.distance_kind = "truth" if depth.truth else "predicted"
+    scene.meta.update(depth=str(depth.path), depth_kind=depth.kind,
+                      depth_scale=depth.scale, depth_from=depth.source or ("true depth" if depth.truth else "predicted"))
+    return scene
 
 
 def _hohonet(width):
@@ -59,8 +77,8 @@ def _hohonet(width):
     return scene_from_image(
         d / "hohonet_pano.png", width, name="hohonet",
         description="real indoor panorama (HoHoNet demo), with HoHoNet's predicted depth (not ground truth)",
-        depth_path=d / "hohonet_pano.pred_depth_mm.png", depth_scale=1e-3,
-        depth_from="HoHoNet prediction, millimetres, distance along the ray",
+        depth=DepthSpec(d / "hohonet_pano.pred_depth_mm.png", 1e-3, truth=False,
+                        source="HoHoNet prediction, millimetres, distance along the ray"),
     )
 
 

@@ -51,7 +51,9 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     peak_rss_mb (process peak so far), fusion solver report, depth and point metrics against the truth
     (median-aligned unless the teacher is metric; the cloud is scaled by the same factor before point
     metrics) or 'n/a: <reason>', and the median per-view teacher AbsRel; for affine-invariant teachers also
-    ``depth_inverse_affine`` (the fused map aligned by scale and shift in inverse distance)."""
+    ``depth_inverse_affine`` (the fused map aligned by scale and shift in inverse distance). The fused ERP ray
+    distance the metrics are computed from ([H, W] float32 metres, NaN unknown) is kept in
+    ``pc.meta["erp_distance"]`` when the source gives one."""
     t_total = time.perf_counter()
     spec = get_source(source_name)
     if spec.uses_teacher and not teacher_spec:
@@ -67,6 +69,8 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
             report[key] = info[key]
     metric = bool(info.get("view_depths") and all(v.metric for v in info["view_depths"]))
     distance = info.get("distance")
+    if distance is not None:
+        pc.meta["erp_distance"] = np.asarray(distance, np.float32)
     if not scene.has_ground_truth:
         reason = f"scene {scene.name!r} has no ground truth"
         report["depth"] = f"n/a: {reason}"

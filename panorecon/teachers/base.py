@@ -7,6 +7,7 @@ from typing import Protocol, Sequence
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth
+from ..io import PanoreconInputError
 
 
 @dataclass
@@ -46,8 +47,8 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
         r = scene.world.render_view(camera)
         return r.distance, r.sky
     if scene.distance is None or scene.distance_kind != "truth":
-        raise ValueError(f"scene {scene.name!r} has no ground-truth depth (its depth is {scene.distance_kind!r}); "
-                         "simulated teachers need a synthetic scene")
+        raise PanoreconInputError(f"scene {scene.name!r} has no true depth (its depth is {scene.distance_kind!r}); "
+                                  "simulated teachers need a synthetic scene or a real one with --depth")
     from ..geometry import sample_erp
 
     d = sample_erp(scene.distance, camera.world_rays(), "nearest")

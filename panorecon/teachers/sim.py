@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth
+from ..io import PanoreconInputError
 from .base import ErpDepth, true_view_distance
 
 
@@ -113,7 +114,8 @@ class SimTeacher:
 
     def predict_erp(self, scene) -> ErpDepth:
         if scene.distance is None or scene.distance_kind != "truth":
-            raise ValueError(f"scene {scene.name!r} has no ground-truth depth; simulated teachers need a synthetic scene")
+            raise PanoreconInputError(f"scene {scene.name!r} has no true depth; simulated teachers need a synthetic "
+                                      "scene or a real one with --depth")
         out, valid = self._corrupt(scene.distance, scene.sky, self._rng(scene.name, 1_000_000))
         kind = "disparity" if self.profile.output == "disparity" else "distance"
         return ErpDepth(out, kind, valid, affine=self.profile.affine)

@@ -60,7 +60,7 @@ def test_sky_is_never_valid():
 
 
 def test_sim_needs_truth(real_data, cams):
-    with pytest.raises(ValueError, match="ground-truth"):
+    with pytest.raises(ValueError, match="has no true depth.*with --depth"):
         get_teacher("sim:clean").predict_views(load_scene("hohonet", 128), cams)
 
 

@@ -1,0 +1,112 @@
+"""True-depth files for ERP panoramas: 16-bit PNG, OpenEXR and NPY -> ray distance in metres (float32).
+
+A depth file stores ``value * scale`` metres (``scale``: metres per stored unit; default 1 for .npy/.exr,
+0.001 for 16-bit PNG). Invalid values become NaN: 0, 65535 in a 16-bit PNG (the usual "missing" code),
+anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is:
+
+- ``distance``: metres along the ray from the panorama centre (panorecon's ERP depth);
+- ``z``: metres along the axis of the cube face the ray passes through, as in a panorama stitched from six
+  z-depth cube faces; distance = z / max(|dx|, |dy|, |dz|) for the unit ray d.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .files import PanoreconInputError, check_erp_shape, read_image
+
+DEPTH_KINDS = ("distance", "z")
+DEPTH_SUFFIXES = (".png", ".exr", ".npy")
+PNG_DEFAULT_SCALE = 1e-3
+INVALID_AT_OR_ABOVE = 1e9
+PNG_MISSING = 65535
+_EXR_CHANNELS = ("Z", "Y", "R", "depth", "distance")
+
+
+def default_depth_scale(path: str | os.PathLike) -> float:
+    """Metres per stored unit when none is given: 0.001 for a 16-bit PNG (millimetres), else 1."""
+    return PNG_DEFAULT_SCALE if Path(path).suffix.lower() == ".png" else 1.0
+
+
+def read_depth_raw(path: str | os.PathLike) -> np.ndarray:
+    """The stored values [H, W] float64 of a depth file, invalid codes already NaN (see the module doc)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in DEPTH_SUFFIXES:
+        raise PanoreconInputError(f"{path}: not a depth file (expected {', '.join(DEPTH_SUFFIXES)})")
+    if not path.is_file():
+        raise PanoreconInputError(f"{path}: no such file")
+    if suffix == ".png":
+        raw = read_image(path, unchanged=True)
+        if raw.ndim != 2:
+            raise PanoreconInputError(f"{path}: expected a single-channel depth image, got {raw.shape[2]} channels")
+        if raw.dtype != np.uint16:
+            raise PanoreconInputError(f"{path}: depth PNG is {raw.dtype.itemsize * 8}-bit; expected 16-bit "
+                                      "(an 8-bit PNG cannot hold metric depth)")
+        out = raw.astype(np.float64)
+        out[raw == PNG_MISSING] = np.nan
+    elif suffix == ".exr":
+        out = _read_exr(path)
+    else:
+        try:
+            out = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as e:
+            raise PanoreconInputError(f"{path}: not a readable .npy depth map ({e})") from None
+        if out.ndim != 2 or not np.issubdtype(out.dtype, np.number):
+            raise PanoreconInputError(f"{path}: expected a 2-D numeric depth map, got {out.dtype} {out.shape}")
+        out = out.astype(np.float64)
+    out[~np.isfinite(out) | (out <= 0) | (out >= INVALID_AT_OR_ABOVE)] = np.nan
+    return out
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    try:
+        import OpenEXR
+    except ImportError:
+        raise PanoreconInputError(f"{path}: reading EXR depth needs the OpenEXR package: "
+                                  "pip install 'panorecon[exr]' (or pip install openexr)") from None
+    try:
+        with OpenEXR.File(str(path)) as f:
+            channels = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+    except Exception as e:  # OpenEXR raises bare exceptions for truncated or foreign files
+        raise PanoreconInputError(f"{path}: not a readable EXR file ({e})") from None
+    name = next((n for n in _EXR_CHANNELS if n in channels), None)
+    if name is None and len(channels) == 1:
+        name = next(iter(channels))
+    if name is None:
+        raise PanoreconInputError(f"{path}: no depth channel among {sorted(channels)} "
+                                  f"(expected one of {', '.join(_EXR_CHANNELS)} or a single channel)")
+    data = channels[name]
+    if data.ndim == 3:  # an RGB(A) layer stored as one channel of pixel tuples: its first component
+        data = data[..., 0]
+    return data.astype(np.float64)
+
+
+def erp_z_to_distance_factor(height: int, width: int) -> np.ndarray:
+    """[H, W] float64: distance / z for cube-face z-depth, 1 / max(|dx|, |dy|, |dz|) of each unit ERP ray."""
+    from ..geometry import erp_directions
+
+    return 1.0 / np.abs(erp_directions(height, width)).max(-1)
+
+
+def read_erp_depth(path: str | os.PathLike, scale: float | None = None, kind: str = "distance") -> np.ndarray:
+    """A panorama's true depth file -> ray distance [H, W] float32 metres, NaN where invalid.
+
+    Raises PanoreconInputError for a file that is not a 2:1 ERP, a bad scale or kind, or a map with no
+    valid pixel."""
+    path = Path(path)
+    if kind not in DEPTH_KINDS:
+        raise PanoreconInputError(f"--depth-kind {kind!r}: expected one of {', '.join(DEPTH_KINDS)}")
+    scale = default_depth_scale(path) if scale is None else float(scale)
+    if not (np.isfinite(scale) and scale > 0):
+        raise PanoreconInputError(f"--depth-scale {scale}: expected a positive number of metres per stored unit")
+    raw = read_depth_raw(path)
+    check_erp_shape(raw.shape, str(path))
+    d = raw * scale
+    if kind == "z":
+        d = d * erp_z_to_distance_factor(*d.shape)
+    if not np.isfinite(d).any():
+        raise PanoreconInputError(f"{path}: the depth map has no valid pixel (all 0, 65535, NaN, negative or >= 1e9)")
+    return d.astype(np.float32)
