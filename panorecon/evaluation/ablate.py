@@ -129,7 +129,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
            "teacher_view_abs_rel": _num(rep.get("teacher_per_view_abs_rel_median")),
            "points": points.get("count"), "chamfer": _num(points.get("chamfer")),
            "accuracy": _num(points.get("accuracy")), "completeness": _num(points.get("completeness")),
-           "sec_points": pts["seconds"], "peak_mb_points": pts["peak_rss_mb"]}
+           "sec_points": pts["seconds"], "peak_mb_points": pts["peak_rss_mb"],
+           "view_components": rep.get("view_components"), "warning": "; ".join(rep.get("warnings", []))}
     for stage, sec in rep["seconds"].items():
         if stage != "total":
             rec[f"sec_points_{stage}"] = sec

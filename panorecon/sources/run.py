@@ -65,6 +65,11 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     for key in ("fusion", "panoramas", "baseline"):  # solver statistics; multi-view baselines' inputs and report
         if key in info:
             report[key] = info[key]
+    conn = (info.get("fusion") or {}).get("connectivity")
+    if conn is not None:  # every fusion reports which views its equations tie together
+        report["view_components"] = conn["components"]
+        if conn.get("warning"):
+            report["warnings"] = [conn["warning"]]
     metric = bool(info.get("view_depths") and all(v.metric for v in info["view_depths"]))
     distance = info.get("distance")
     if not scene.has_ground_truth:
