@@ -314,7 +314,10 @@ USER_OS_ERRORS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.EEXIST, errno.EN
 def main(argv: list[str] | None = None) -> int:
     """Parse (options are validated here: a bad one exits 2 before any work), run, and turn every user mistake
     into one line ``panorecon: error: ...`` with exit status 2; only panorecon's own bugs leave a traceback."""
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # --help (0) or a rejected option (2, its one line already printed)
+        return e.code if isinstance(e.code, int) else 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
     try:
         return args.fn(args)

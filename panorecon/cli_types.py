@@ -16,19 +16,20 @@ class _IntIn:
     """An integer in [lo, hi] (hi None: unbounded). A class rather than a closure so argparse's messages
     and repr() name the range."""
 
-    def __init__(self, lo: int, hi: int | None, what: str = "integer"):
-        self.lo, self.hi, self.what = lo, hi, what
+    def __init__(self, lo: int, hi: int | None, what: str = "integer", even: bool = False):
+        self.lo, self.hi, self.what, self.even = lo, hi, what, even
         self.__name__ = what  # argparse uses it in "invalid <name> value"
 
     def expected(self) -> str:
-        return f"an integer from {self.lo} to {self.hi}" if self.hi is not None else f"an integer >= {self.lo}"
+        kind = "an even integer" if self.even else "an integer"
+        return f"{kind} from {self.lo} to {self.hi}" if self.hi is not None else f"{kind} >= {self.lo}"
 
     def __call__(self, text: str) -> int:
         try:
             value = int(str(text).strip(), 10)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not an integer; expected {self.expected()}") from None
-        if value < self.lo or (self.hi is not None and value > self.hi):
+        if value < self.lo or (self.hi is not None and value > self.hi) or (self.even and value % 2):
             raise argparse.ArgumentTypeError(f"{value} is out of range; expected {self.expected()}")
         return value
 
@@ -61,9 +62,9 @@ class _FloatIn:
         return value
 
 
-def int_in(lo: int, hi: int | None = None, what: str = "integer") -> _IntIn:
-    """Validator for an integer in [lo, hi]."""
-    return _IntIn(lo, hi, what)
+def int_in(lo: int, hi: int | None = None, what: str = "integer", even: bool = False) -> _IntIn:
+    """Validator for an integer in [lo, hi] (and even, if asked)."""
+    return _IntIn(lo, hi, what, even)
 
 
 def float_in(lo: float | None = None, hi: float | None = None, what: str = "number") -> _FloatIn:
@@ -72,7 +73,7 @@ def float_in(lo: float | None = None, hi: float | None = None, what: str = "numb
 
 
 # the project's numeric options; bounds are what the code can do meaningfully, not what fits in memory today
-ERP_WIDTH = int_in(16, 16384, "ERP width")  # io.files.MAX_ERP_WIDTH; 16 px is the smallest usable pyramid
+ERP_WIDTH = int_in(16, 16384, "ERP width", even=True)  # io.files.MAX_ERP_WIDTH; 16 px is the smallest usable pyramid
 VIEWS = int_in(1, 1000, "view count")
 VIEW_SIZE = int_in(16, 4096, "view size")  # below 16 px a view holds no usable depth gradient
 ITERS = int_in(1, 10_000_000, "step count")

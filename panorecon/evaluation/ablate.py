@@ -21,7 +21,7 @@ import pandas as pd
 from ..io import atomic_write
 from ..pipeline import Row, StageCache, run_points, run_train
 from .environment import environment, git_commit
-from .suite import Suite
+from .suite import Suite, resolve_names
 
 ENGINES = ("local", "dask")
 
@@ -82,6 +82,7 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
         raise ValueError(f"engine={engine!r}: expected one of {ENGINES}")
     if jobs < 1:
         raise ValueError(f"jobs={jobs}: expected at least 1")
+    resolve_names(suite)  # every scene, source and teacher, before the first stage and before --out is made
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cache = StageCache(cache_dir or out / "cache")

@@ -46,7 +46,9 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
         r = scene.world.render_view(camera)
         return r.distance, r.sky
     if scene.distance is None or scene.distance_kind != "truth":
-        raise ValueError(f"scene {scene.name!r} has no ground-truth depth (its depth is {scene.distance_kind!r}); "
+        from ..io import PanoreconInputError
+
+        raise PanoreconInputError(f"scene {scene.name!r} has no ground-truth depth (its depth is {scene.distance_kind!r}); "
                          "simulated teachers need a synthetic scene")
     from ..geometry import sample_erp
 
