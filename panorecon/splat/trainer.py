@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -21,6 +22,8 @@ from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
 from .strategy import STRATEGIES
+
+log = logging.getLogger("panorecon.train")
 
 
 def _f(default, help: str):
@@ -132,6 +135,7 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         start, history = state["iteration"], state["history"]
         strategy.load_state_dict(state["strategy"])
         torch.set_rng_state(state["rng"])
+        log.info("resuming %s at step %d of %d", ckpt, start, cfg.iters)
     t = time.perf_counter()
     gen = np.random.default_rng(cfg.seed)
     order = gen.integers(0, len(labels), size=cfg.iters)
