@@ -86,3 +86,27 @@ def test_sigkill_of_ablate_resumes_to_identical_results(tmp_path):
     a, b = (pd.read_csv(tmp_path / d / "results.csv") for d in ("full", "killed"))
     assert b.loc[0, "cached"] == "points"  # the points stage finished before the kill; training was resumed
     pd.testing.assert_frame_equal(a[METRICS], b[METRICS], check_exact=True)
+
+
+def test_two_ablate_runs_on_one_cache_compute_each_stage_once(tmp_path):
+    """Both runs wait on the stage lock (held here until both are blocked on it); one computes, the other
+    reads its result, and each run's results.csv says which."""
+    from panorecon.evaluation.suite import load_suite
+    from panorecon.pipeline import StageCache
+
+    (tmp_path / "s.toml").write_text(SUITE.replace("[grid]", "train = false\n[grid]"))
+    row = load_suite(tmp_path / "s.toml").rows[0]
+    cache = StageCache(tmp_path / "cache")
+    with cache.lock("points", row.points_key()):
+        inode = os.stat(cache.folder("points", row.points_key()) / ".lock").st_ino
+        runs = [_cli(["ablate", str(tmp_path / "s.toml"), "--out", str(tmp_path / name), "--cache",
+                      str(tmp_path / "cache"), "--no-progress"]) for name in ("a", "b")]
+        t = time.monotonic()
+        while sum(f":{inode} " in ln and "->" in ln for ln in Path("/proc/locks").read_text().splitlines()) < 2:
+            assert all(r.poll() is None for r in runs) and time.monotonic() - t < 300
+            time.sleep(0.05)
+    for r in runs:
+        _finish(r)
+    a, b = (pd.read_csv(tmp_path / d / "results.csv") for d in ("a", "b"))
+    assert sorted([a.loc[0, "cached"], b.loc[0, "cached"]]) == ["none", "points"]
+    pd.testing.assert_frame_equal(a[["abs_rel", "chamfer", "points"]], b[["abs_rel", "chamfer", "points"]])
