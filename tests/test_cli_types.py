@@ -94,3 +94,27 @@ def test_os_errors_of_the_users_paths_are_one_line(tmp_path, capsys, monkeypatch
     monkeypatch.setattr(cli, "cmd_sources_list", bug)
     with pytest.raises(OSError):
         main(["sources", "list"])
+
+
+def test_an_out_folder_that_cannot_be_written_is_refused_at_the_parser(tmp_path, monkeypatch, capsys):
+    import os
+
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(tmp_path) else real(p, mode))
+    assert main(["train", "bedroom", "--source", "random", "--out", str(tmp_path / "new")]) == 2
+    assert "is not writable" in capsys.readouterr().err and not (tmp_path / "new").exists()
+
+
+def test_inspect_of_a_cut_off_ply_is_one_line(tmp_path, capsys, capfd):
+    import numpy as np
+
+    from panorecon.geometry import PointCloud
+
+    PointCloud(np.random.default_rng(0).normal(size=(300, 3)), np.zeros((300, 3))).save_ply(tmp_path / "c.ply")
+    data = (tmp_path / "c.ply").read_bytes()
+    (tmp_path / "c.ply").write_bytes(data[: len(data) // 2])
+    capfd.readouterr()
+    assert main(["inspect", str(tmp_path / "c.ply"), "--screenshot", str(tmp_path / "s.png")]) == 2
+    err = capfd.readouterr().err
+    assert "c.ply" in err and "cut-off" in err and err.count("\n") == 1
+    assert not (tmp_path / "s.png").exists()
