@@ -105,7 +105,7 @@ def test_an_out_folder_that_cannot_be_written_is_refused_at_the_parser(tmp_path,
     assert "is not writable" in capsys.readouterr().err and not (tmp_path / "new").exists()
 
 
-def test_inspect_of_a_cut_off_ply_is_one_line(tmp_path, capsys, capfd):
+def test_inspect_of_a_cut_off_ply_is_one_line(tmp_path, capfd):
     import numpy as np
 
     from panorecon.geometry import PointCloud
