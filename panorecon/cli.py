@@ -231,7 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--screenshot", type=T.out_file, help="render off-screen to this PNG instead of opening a window")
     i.add_argument("--color", default=None, help="colour by this per-point scalar (e.g. view_id, error) instead of RGB")
     i.add_argument("--point-size", type=T.float_in(0.1, 100.0, "point size"), default=2.0)
-    i.add_argument("--clip-z", type=T.FINITE_FLOAT, default=None, help="hide points above this height (metres), e.g. a ceiling")
+    i.add_argument("--clip-z", type=T.FINITE_FLOAT, default=None,
+                   help="hide points above this height (metres), e.g. a ceiling")
     i.set_defaults(fn=cmd_inspect)
 
     tl = sub.add_parser("teachers", help="depth teachers").add_subparsers(dest="what", required=True)
@@ -268,17 +269,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)")
     tr.add_argument("--seed", type=T.SEED, default=None)
     tr.add_argument("--no-progress", action="store_true")
-    tr.add_argument("--out", required=True, type=T.out_dir, help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
+    tr.add_argument("--out", required=True, type=T.out_dir,
+                    help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
     tr.set_defaults(fn=cmd_train)
 
     ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots")
     ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
-    ab.add_argument("--out", required=True, type=T.out_dir, help="output folder (its cache/ makes a rerun or a resumed run cheap)")
+    ab.add_argument("--out", required=True, type=T.out_dir,
+                    help="output folder (its cache/ makes a rerun or a resumed run cheap)")
     ab.add_argument("--jobs", type=T.JOBS, default=1, help="parallel worker processes")
     ab.add_argument("--engine", choices=["local", "dask"], default="local",
                     help="local process pool, or Dask (a LocalCluster, or --scheduler ADDRESS)")
     ab.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (with --engine dask)")
-    ab.add_argument("--cache", default=None, type=T.out_dir, help="stage cache folder shared between suites (default OUT/cache)")
+    ab.add_argument("--cache", default=None, type=T.out_dir,
+                    help="stage cache folder shared between suites (default OUT/cache)")
     ab.add_argument("--no-progress", action="store_true")
     ab.set_defaults(fn=cmd_ablate)
 

@@ -123,11 +123,14 @@ def add_export_parser(subparsers) -> None:
     ex.add_argument("--teacher", default=None, help="depth teacher, for sources that use one")
     ex.add_argument("--views", type=T.VIEWS, default=None, help="views of the point source")
     ex.add_argument("--format", dest="format", choices=FORMATS, required=True)
-    ex.add_argument("--out", required=True, type=T.out_dir, help="output folder (written to a temporary folder, then renamed)")
+    ex.add_argument("--out", required=True, type=T.out_dir,
+                    help="output folder (written to a temporary folder, then renamed)")
     ex.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
-    ex.add_argument("--labels", type=T.LABELS, default=120, help="pseudo-label views on a Fibonacci layout (default 120)")
+    ex.add_argument("--labels", type=T.LABELS, default=120,
+                    help="pseudo-label views on a Fibonacci layout (default 120)")
     ex.add_argument("--res", type=T.LABEL_RES, default=256, help="label view size in pixels (default 256)")
-    ex.add_argument("--fov", type=T.float_in(1.0, 170.0, "field of view"), default=60.0, help="label field of view in degrees (default 60)")
+    ex.add_argument("--fov", type=T.float_in(1.0, 170.0, "field of view"), default=60.0,
+                    help="label field of view in degrees (default 60)")
     ex.add_argument("--image-format", choices=IMAGE_FORMATS, default="png")
     ex.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     ex.set_defaults(fn=run_export)

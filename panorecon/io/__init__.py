@@ -3,4 +3,5 @@ from .files import (atomic_write, file_sha256, quiet_native_stderr, read_image, 
                     PanoreconInputError)
 from .process import peak_rss_mb
 
-__all__ = ["atomic_write", "file_sha256", "quiet_native_stderr", "read_image", "write_image", "save_npy", "write_json", "PanoreconInputError", "peak_rss_mb"]
+__all__ = ["atomic_write", "file_sha256", "quiet_native_stderr", "read_image", "write_image", "save_npy", "write_json",
+           "PanoreconInputError", "peak_rss_mb"]

@@ -60,7 +60,8 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size)
     if len(pc) == 0:
         raise PanoreconInputError(f"source {source_name!r} with teacher {teacher_spec!r} gave no point on scene "
-                                  f"{scene.name!r} (no valid fused depth; at small widths try a larger --width or --view-size)")
+                                  f"{scene.name!r} (no valid fused depth; at small widths try a larger --width or "
+                                  "--view-size)")
     t = time.perf_counter()
     report = {"source": source_name, "teacher": teacher.name if teacher else None, "scene": scene.name,
               "erp": [scene.width, scene.height], "views": info.get("views"), "view_size": info.get("view_size"),

@@ -48,8 +48,8 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
     if scene.distance is None or scene.distance_kind != "truth":
         from ..io import PanoreconInputError
 
-        raise PanoreconInputError(f"scene {scene.name!r} has no ground-truth depth (its depth is {scene.distance_kind!r}); "
-                         "simulated teachers need a synthetic scene")
+        raise PanoreconInputError(f"scene {scene.name!r} has no ground-truth depth (its depth is "
+                                  f"{scene.distance_kind!r}); simulated teachers need a synthetic scene")
     from ..geometry import sample_erp
 
     d = sample_erp(scene.distance, camera.world_rays(), "nearest")

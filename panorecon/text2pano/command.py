@@ -19,8 +19,10 @@ def add_generate_parser(sub) -> None:
     g.add_argument("--steps", type=T.STEPS, default=50)
     g.add_argument("--seed", type=T.SEED, default=0)
     g.add_argument("--width", type=T.ERP_WIDTH, default=2048, help="panorama width (height = width / 2)")
-    g.add_argument("--window", type=T.int_in(1, 4096, "window"), default=64, help="sliding-window width in latent columns (8 px each)")
-    g.add_argument("--stride", type=T.int_in(1, 4096, "stride"), default=16, help="latent columns between sliding windows")
+    g.add_argument("--window", type=T.int_in(1, 4096, "window"), default=64,
+                   help="sliding-window width in latent columns (8 px each)")
+    g.add_argument("--stride", type=T.int_in(1, 4096, "stride"), default=16,
+                   help="latent columns between sliding windows")
     g.add_argument("--no-seam-block", action="store_true", help="turn the seam block off (for comparison)")
     g.add_argument("--out", required=True, type=T.out_file, help="output PNG")
     g.set_defaults(fn=run_generate)

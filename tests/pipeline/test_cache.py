@@ -46,7 +46,8 @@ def test_finished_stage_records_content_hashes_and_a_corrupt_entry_is_recomputed
     with caplog.at_level("WARNING", logger="panorecon.cache"):
         again = run_points(cache, row)
     assert not again["cached"] and str(folder) in caplog.text and "cloud.ply" in caplog.text
-    assert (folder / "cloud.ply").read_bytes() == cloud and len(PointCloud.load_ply(folder / "cloud.ply")) == first["points"]
+    assert (folder / "cloud.ply").read_bytes() == cloud
+    assert len(PointCloud.load_ply(folder / "cloud.ply")) == first["points"]
     # a cut done.json is a warning naming it, not a JSONDecodeError
     text = (folder / "done.json").read_text()
     for broken in (text[: len(text) // 2], json.dumps({"stage": "points", "key": "other", "files": {}}),
