@@ -157,11 +157,11 @@ def cmd_train(args) -> int:
     from .scenes import load_scene
     from .splat.trainer import TrainConfig, train
 
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
     scene = load_scene(args.scene, args.width)
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
-    fields = {f.name for f in dataclasses.fields(TrainConfig)}
-    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
     m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress,
               inputs={"source": args.source, "teacher": args.teacher, "views": args.views})
     held = m["held-out"]
