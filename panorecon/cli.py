@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 
 import numpy as np
@@ -9,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+from . import cli_types as T
 from .io import PanoreconInputError
 
 log = logging.getLogger("panorecon")
@@ -73,10 +75,7 @@ def cmd_inspect(args) -> int:
     from .viz import screenshot, show
 
     path = Path(args.cloud)
-    try:
-        pc = PointCloud.load_ply(path)
-    except FileNotFoundError as e:
-        raise PanoreconInputError(str(e)) from None
+    pc = PointCloud.load_ply(path)
     if args.screenshot:
         screenshot(pc, args.screenshot, args.color, args.point_size, args.clip_z)
         print(f"{path}: {len(pc)} points -> {args.screenshot}")
@@ -106,7 +105,7 @@ def cmd_demo(args) -> int:
                                    color=None, point_size=2.0, clip_z=clip_z))
     cmd_train(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, width=args.width,
                                  iters=args.iters, res=64, labels=120, backend=None, strategy=None, seed=None,
-                                 no_progress=False, out=str(out), **depth))
+                                 checkpoint_every=None, no_progress=False, out=str(out), **depth))
     cmd_inspect(argparse.Namespace(cloud=str(out / "fibonacci_cloud.ply"), screenshot=str(out / "fibonacci_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
     return 0
@@ -149,6 +148,8 @@ def _initial_cloud(args, scene, cloud_path, report_path):
     chamfer = f"{pts['chamfer']:.4f} m" if isinstance(pts.get("chamfer"), float) else pts.get("chamfer")
     print(f"{scene.name} / {args.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}, "
           f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {cloud_path}")
+    for warning in report.get("warnings", []):
+        print(f"WARNING: {warning}")
     return pc, report
 
 
@@ -168,12 +169,13 @@ def cmd_train(args) -> int:
     from .scenes import scene_from_args
     from .splat.trainer import TrainConfig, train
 
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
     scene = scene_from_args(args)
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
-    fields = {f.name for f in dataclasses.fields(TrainConfig)}
-    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
-    m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress)
+    m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress,
+              inputs={"source": args.source, "teacher": args.teacher, "views": args.views})
     held = m["held-out"]
     held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
@@ -194,6 +196,9 @@ def cmd_ablate(args) -> int:
                       cache_dir=args.cache, progress=not args.no_progress)
     cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
     print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
+    if "warning" in frame:
+        for _, r in frame[frame["warning"].fillna("").astype(str) != ""].iterrows():
+            print(f"WARNING ({r['label']}, {r['scene']}): {r['warning']}")
     print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png")
     return 0
 
@@ -205,8 +210,16 @@ def cmd_bench(args) -> int:
 
 
 # ---------------------------------------------------------------- parser
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``panorecon <command>: error: ...``, exit 2) instead of usage + error;
+    subcommand parsers inherit it."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="panorecon", description=__doc__)
+    p = _Parser(prog="panorecon", description=__doc__)
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -218,22 +231,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="write pano.png, distance.npy (float32 metres, inf = sky) and mask.png")
     r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
-    r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--width", type=int, default=None, help="ERP width in pixels (height = width / 2)")
+    r.add_argument("--out", required=True, type=T.out_dir, help="output folder")
+    r.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width in pixels (height = width / 2)")
     r.set_defaults(fn=cmd_render)
 
     g = sub.add_parser("gt-cloud", help="the ground-truth coloured point cloud from the true distance")
     g.add_argument("scene")
-    g.add_argument("--out", required=True, help="output .ply")
-    g.add_argument("--width", type=int, default=None)
+    g.add_argument("--out", required=True, type=T.out_file, help="output .ply")
+    g.add_argument("--width", type=T.ERP_WIDTH, default=None)
     g.set_defaults(fn=cmd_gt_cloud)
 
     i = sub.add_parser("inspect", help="look at a point cloud with pyvista")
     i.add_argument("cloud", help="a .ply point cloud")
-    i.add_argument("--screenshot", help="render off-screen to this PNG instead of opening a window")
+    i.add_argument("--screenshot", type=T.out_file, help="render off-screen to this PNG instead of opening a window")
     i.add_argument("--color", default=None, help="colour by this per-point scalar (e.g. view_id, error) instead of RGB")
-    i.add_argument("--point-size", type=float, default=2.0)
-    i.add_argument("--clip-z", type=float, default=None, help="hide points above this height (metres), e.g. a ceiling")
+    i.add_argument("--point-size", type=T.float_in(0.1, 100.0, "point size"), default=2.0)
+    i.add_argument("--clip-z", type=T.FINITE_FLOAT, default=None,
+                   help="hide points above this height (metres), e.g. a ceiling")
     i.set_defaults(fn=cmd_inspect)
 
     tl = sub.add_parser("teachers", help="depth teachers").add_subparsers(dest="what", required=True)
@@ -245,40 +259,47 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("scene")
     pt.add_argument("--source", required=True, help="see `panorecon sources list`")
     pt.add_argument("--teacher", default=None, help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S]")
-    pt.add_argument("--views", type=int, default=None, help="number of views (fibonacci, latlong)")
-    pt.add_argument("--view-size", type=int, default=None, help="perspective view size in pixels (default: ERP width / 4, at most 512)")
-    pt.add_argument("--width", type=int, default=None, help="ERP width")
-    pt.add_argument("--out", required=True, help="output .ply")
-    pt.add_argument("--report", default=None, help="output report .json")
-    pt.add_argument("--distance-out", default=None, help="also write the fused ERP ray distance (.npy, float32 metres)")
+    pt.add_argument("--views", type=T.VIEWS, default=None, help="number of views (fibonacci, latlong)")
+    pt.add_argument("--view-size", type=T.VIEW_SIZE, default=None,
+                    help="perspective view size in pixels (default: ERP width / 4, at most 512)")
+    pt.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
+    pt.add_argument("--out", required=True, type=T.out_file, help="output .ply")
+    pt.add_argument("--report", default=None, type=T.out_file, help="output report .json")
+    pt.add_argument("--distance-out", default=None, type=T.out_file,
+                    help="also write the fused ERP ray distance (.npy, float32 metres)")
     pt.set_defaults(fn=cmd_points)
 
     tr = sub.add_parser("train", help="fit Gaussians from a point source to the scene's pseudo-labels")
     tr.add_argument("scene")
     tr.add_argument("--source", required=True)
     tr.add_argument("--teacher", default=None, help="depth teacher for the source and the Pearson depth term")
-    tr.add_argument("--views", type=int, default=None, help="views of the point source")
-    tr.add_argument("--width", type=int, default=None, help="ERP width")
-    tr.add_argument("--iters", type=int, default=None, help="optimisation steps (default 3000)")
-    tr.add_argument("--res", type=int, default=None, help="label view size in pixels (default 128)")
-    tr.add_argument("--labels", type=int, default=None, help="pseudo-label views (default 240)")
+    tr.add_argument("--views", type=T.VIEWS, default=None, help="views of the point source")
+    tr.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
+    tr.add_argument("--iters", type=T.ITERS, default=None, help="optimisation steps (default 3000)")
+    tr.add_argument("--res", type=T.LABEL_RES, default=None, help="label view size in pixels (default 128)")
+    tr.add_argument("--labels", type=T.LABELS, default=None, help="pseudo-label views (default 240)")
+    tr.add_argument("--checkpoint-every", type=T.ITERS, default=None,
+                    help="steps between checkpoints (OUT/ckpt.pt; default 500)")
     tr.add_argument("--backend", choices=["auto", "torch", "cpu"], default=None,
                     help="rasterizer (training runs on CPU tensors; gsplat serves CUDA tensors through rasterize())")
     tr.add_argument("--strategy", choices=["default", "adaptive"], default=None,
                     help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)")
-    tr.add_argument("--seed", type=int, default=None)
+    tr.add_argument("--seed", type=T.SEED, default=None)
     tr.add_argument("--no-progress", action="store_true")
-    tr.add_argument("--out", required=True, help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
+    tr.add_argument("--out", required=True, type=T.out_dir,
+                    help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
     tr.set_defaults(fn=cmd_train)
 
     ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots")
     ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
-    ab.add_argument("--out", required=True, help="output folder (its cache/ makes a rerun or a resumed run cheap)")
-    ab.add_argument("--jobs", type=int, default=1, help="parallel worker processes")
+    ab.add_argument("--out", required=True, type=T.out_dir,
+                    help="output folder (its cache/ makes a rerun or a resumed run cheap)")
+    ab.add_argument("--jobs", type=T.JOBS, default=1, help="parallel worker processes")
     ab.add_argument("--engine", choices=["local", "dask"], default="local",
                     help="local process pool, or Dask (a LocalCluster, or --scheduler ADDRESS)")
     ab.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (with --engine dask)")
-    ab.add_argument("--cache", default=None, help="stage cache folder shared between suites (default OUT/cache)")
+    ab.add_argument("--cache", default=None, type=T.out_dir,
+                    help="stage cache folder shared between suites (default OUT/cache)")
     ab.add_argument("--no-progress", action="store_true")
     ab.set_defaults(fn=cmd_ablate)
 
@@ -286,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--quick", action="store_true", help="tiny sizes (CI)")
     be.add_argument("--suite", default="eval/suites/bench.toml")
     be.add_argument("--baseline", default="benchmarks/baseline.json")
-    be.add_argument("--out", default=None, help="also write the result JSON here")
+    be.add_argument("--out", default=None, type=T.out_file, help="also write the result JSON here")
     be.add_argument("--update-baseline", action="store_true", help="store this run as the baseline")
     be.set_defaults(fn=cmd_bench)
 
@@ -297,11 +318,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_parser(sub)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
-    d.add_argument("--out", default="out/demo")
+    d.add_argument("--out", default="out/demo", type=T.out_dir)
     d.add_argument("--scene", default=None, help="scene name (default: the built-in default scene)")
-    d.add_argument("--width", type=int, default=512)
+    d.add_argument("--width", type=T.ERP_WIDTH, default=512)
     d.add_argument("--teacher", default="sim:relative", help="depth teacher for the method's point cloud")
-    d.add_argument("--iters", type=int, default=300, help="training steps (64 px labels)")
+    d.add_argument("--iters", type=T.ITERS, default=300, help="training steps (64 px labels)")
     d.set_defaults(fn=cmd_demo)
 
     for command in ("render", "gt-cloud", "points", "train", "export", "demo"):  # every command that takes a SCENE
@@ -315,20 +336,37 @@ DEPTH_OPTIONS = ("depth", "depth_scale", "depth_kind")
 def _add_depth_options(parser: argparse.ArgumentParser) -> None:
     """--depth / --depth-scale / --depth-kind: a real panorama's true depth (see panorecon.io.depth)."""
     g = parser.add_argument_group("true depth of a real panorama")
-    g.add_argument("--depth", default=None, help="true depth file (16-bit .png, .exr, .npy) of the same size as the image")
-    g.add_argument("--depth-scale", type=float, default=None,
+    g.add_argument("--depth", default=None,
+                   help="true depth file (16-bit .png, .exr, .npy) of the same size as the image")
+    g.add_argument("--depth-scale", type=T.float_in(1e-9, 1e9, "depth scale"), default=None,
                    help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)")
     g.add_argument("--depth-kind", choices=("distance", "z"), default="distance",
                    help="distance along the ray (default) or cube-face z-depth")
 
 
+# OS errors that mean the user's paths or disk, not a bug: reported as one line like bad input
+USER_OS_ERRORS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.EEXIST, errno.ENOTDIR, errno.EISDIR, errno.ENOENT,
+                  errno.ENOSPC, errno.EDQUOT, errno.ENAMETOOLONG}
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Parse (options are validated here: a bad one exits 2 before any work), run, and turn every user mistake
+    into one line ``panorecon: error: ...`` with exit status 2; only panorecon's own bugs leave a traceback."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # --help (0) or a rejected option (2, its one line already printed)
+        return e.code if isinstance(e.code, int) else 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
     try:
         return args.fn(args)
     except PanoreconInputError as e:
         print(f"panorecon: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        if e.errno not in USER_OS_ERRORS:
+            raise
+        where = " -> ".join(str(f) for f in (e.filename, e.filename2) if f is not None)
+        print(f"panorecon: error: {where + ': ' if where else ''}{e.strerror or e}", file=sys.stderr)
         return 2
 
 

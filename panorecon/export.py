@@ -114,18 +114,23 @@ def export_scene(scene, cloud: PointCloud, views: int, fmt: str, out_dir: str | 
 
 def add_export_parser(subparsers) -> None:
     """Add ``panorecon export SCENE --source NAME --format colmap|nerfstudio --out DIR``."""
+    from . import cli_types as T
+
     ex = subparsers.add_parser("export", help="export pseudo-label views + a point source's cloud as a COLMAP model "
                                               "or a nerfstudio dataset")
     ex.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
     ex.add_argument("--source", required=True, help="point source (see `panorecon sources list`)")
     ex.add_argument("--teacher", default=None, help="depth teacher, for sources that use one")
-    ex.add_argument("--views", type=int, default=None, help="views of the point source")
+    ex.add_argument("--views", type=T.VIEWS, default=None, help="views of the point source")
     ex.add_argument("--format", dest="format", choices=FORMATS, required=True)
-    ex.add_argument("--out", required=True, help="output folder (written to a temporary folder, then renamed)")
-    ex.add_argument("--width", type=int, default=None, help="ERP width")
-    ex.add_argument("--labels", type=int, default=120, help="pseudo-label views on a Fibonacci layout (default 120)")
-    ex.add_argument("--res", type=int, default=256, help="label view size in pixels (default 256)")
-    ex.add_argument("--fov", type=float, default=60.0, help="label field of view in degrees (default 60)")
+    ex.add_argument("--out", required=True, type=T.out_dir,
+                    help="output folder (written to a temporary folder, then renamed)")
+    ex.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
+    ex.add_argument("--labels", type=T.LABELS, default=120,
+                    help="pseudo-label views on a Fibonacci layout (default 120)")
+    ex.add_argument("--res", type=T.LABEL_RES, default=256, help="label view size in pixels (default 256)")
+    ex.add_argument("--fov", type=T.float_in(1.0, 170.0, "field of view"), default=60.0,
+                    help="label field of view in degrees (default 60)")
     ex.add_argument("--image-format", choices=IMAGE_FORMATS, default="png")
     ex.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     ex.set_defaults(fn=run_export)

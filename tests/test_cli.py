@@ -29,7 +29,7 @@ def test_render_gt_cloud_inspect(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv,needle", [
     (["render", "atlantis", "--out", "X"], "unknown scene 'atlantis'"),
-    (["render", "bedroom", "--out", "X", "--width", "20000"], "--width 20000"),
+    (["render", "bedroom", "--out", "X", "--width", "20000"], "--width: 20000 is out of range"),
     (["render", "missing.png", "--out", "X"], "missing.png: no such file"),
     (["gt-cloud", "py360-demo", "--out", "X/c.ply"], "has no depth"),
     (["inspect", "nothing.ply", "--screenshot", "X/s.png"], "nothing.ply"),

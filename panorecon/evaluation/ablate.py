@@ -21,7 +21,7 @@ import pandas as pd
 from ..io import atomic_write
 from ..pipeline import Row, StageCache, run_points, run_train
 from .environment import environment, git_commit
-from .suite import Suite
+from .suite import Suite, resolve_names
 
 ENGINES = ("local", "dask")
 
@@ -47,11 +47,14 @@ def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
 
 
 def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str,
-               progress: bool) -> None:
+               progress: bool) -> set[str]:
+    """Run ``fn`` on every task -> the keys of the stages this run computed (not those another run sharing the
+    cache computed meanwhile: a task waits for that stage's lock and then reads it)."""
     from tqdm import tqdm
 
+    computed: set[str] = set()
     if not tasks:
-        return
+        return computed
     bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
     if engine == "dask":
         from dask.distributed import Client, LocalCluster, as_completed as dask_completed
@@ -61,7 +64,8 @@ def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, 
         with Client(scheduler or cluster) as client:
             futures = client.map(fn, [cache_root] * len(tasks), tasks, pure=False)
             for f in dask_completed(futures):
-                f.result()
+                r = f.result()
+                computed |= {r["key"]} if not r["cached"] else set()
                 bar.update()
         if cluster is not None:
             cluster.close()
@@ -70,9 +74,11 @@ def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, 
         with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), initializer=_init_worker,
                                  initargs=(threads,), max_tasks_per_child=1) as pool:
             for f in as_completed([pool.submit(fn, cache_root, r) for r in tasks]):
-                f.result()
+                r = f.result()
+                computed |= {r["key"]} if not r["cached"] else set()
                 bar.update()
     bar.close()
+    return computed
 
 
 def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", scheduler: str | None = None,
@@ -82,6 +88,7 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
         raise ValueError(f"engine={engine!r}: expected one of {ENGINES}")
     if jobs < 1:
         raise ValueError(f"jobs={jobs}: expected at least 1")
+    resolve_names(suite)  # every scene, source and teacher, before the first stage and before --out is made
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cache = StageCache(cache_dir or out / "cache")
@@ -89,14 +96,16 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
     # keys fixed once, here: workers use them, so the run stays consistent even if the code changes meanwhile
     tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
     points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
-    _run_tasks(_points_task, list(points_todo.values()), str(cache.root), jobs, engine, scheduler, "points", progress)
+    points_run = _run_tasks(_points_task, list(points_todo.values()), str(cache.root), jobs, engine, scheduler,
+                            "points", progress)
     points_done = {t[1]: cache.done("points", t[1]) for t in tasks}
     train_todo = {t[2]: t for t in tasks if t[2] is not None and "unavailable" not in points_done[t[1]]
                   and cache.done("train", t[2]) is None}
-    _run_tasks(_train_task, list(train_todo.values()), str(cache.root), jobs, engine, scheduler, "train", progress)
+    train_run = _run_tasks(_train_task, list(train_todo.values()), str(cache.root), jobs, engine, scheduler, "train",
+                           progress)
     env = environment()
     frame = pd.DataFrame([result_row(row, points_done[pk], cache.done("train", tk) if tk else None, env,
-                                     pk not in points_todo, tk is not None and tk not in train_todo)
+                                     pk not in points_run, tk is not None and tk not in train_run)
                           for row, pk, tk in tasks])
     with atomic_write(out / "results.csv") as tmp:
         frame.to_csv(tmp, index=False)
@@ -129,7 +138,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
            "teacher_view_abs_rel": _num(rep.get("teacher_per_view_abs_rel_median")),
            "points": points.get("count"), "chamfer": _num(points.get("chamfer")),
            "accuracy": _num(points.get("accuracy")), "completeness": _num(points.get("completeness")),
-           "sec_points": pts["seconds"], "peak_mb_points": pts["peak_rss_mb"]}
+           "sec_points": pts["seconds"], "peak_mb_points": pts["peak_rss_mb"],
+           "view_components": rep.get("view_components"), "warning": "; ".join(rep.get("warnings", []))}
     for stage, sec in rep["seconds"].items():
         if stage != "total":
             rec[f"sec_points_{stage}"] = sec

@@ -75,6 +75,10 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
     notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]
+    if "warning" in frame:
+        flagged = frame[frame["warning"].fillna("").astype(str) != ""]
+        for _, r in flagged.iterrows():
+            parts += [f"**WARNING** ({r['label']}, {r['scene']}): {r['warning']}", ""]
     paper = _paper_block(suite.paper)
     if paper:
         parts += [paper, ""]

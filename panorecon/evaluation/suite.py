@@ -18,14 +18,21 @@
     rows = [{label = "Our study", values = [42.07, 0.992, 0.020, "8 min 21 s"], match = {source = "fibonacci"}}]
 
 Row keys: scene, width, source, teacher, views, train (false: no training), label, and TrainConfig fields.
+
+The file is checked against a typed schema before anything runs: unknown tables and keys are errors that
+name the closest valid one, every value has its key's type and range, and ``resolve_names`` checks every
+scene, source and teacher a row names (``run_suite`` calls it before the first stage).
 """
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import itertools
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .. import cli_types as T
 from ..io import PanoreconInputError
 from ..pipeline import Row
 
@@ -35,6 +42,13 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 ROW_KEYS = {"scene", "width", "source", "teacher", "views", "train", "label"}
+TOP_KEYS = {"title": str, "rows": list, "defaults": dict, "grid": dict, "variants": list, "paper": dict}
+PAPER_KEYS = {"caption": str, "columns": list, "rows": list}
+PAPER_ROW_KEYS = {"label": str, "values": list, "match": dict}
+# ranges of row values (ints not named here must be >= 0, floats finite and >= 0)
+RANGES = {"width": T.ERP_WIDTH, "views": T.VIEWS, "iters": T.ITERS, "res": T.LABEL_RES, "labels": T.LABELS,
+          "seed": T.SEED, "sh_degree": T.int_in(0, 3, "SH degree"), "sh_increase_every": T.int_in(1, None),
+          "fov_deg": T.float_in(1.0, 170.0, "field of view")}
 
 
 @dataclass
@@ -53,6 +67,97 @@ def _train_fields() -> set[str]:
     return {f.name for f in dataclasses.fields(TrainConfig)}
 
 
+def row_schema() -> dict[str, type]:
+    """Every key a row may set -> its type (TrainConfig's fields with their annotated types)."""
+    from ..splat.trainer import TrainConfig
+
+    hints = typing.get_type_hints(TrainConfig)
+    return {"scene": str, "width": int, "source": str, "teacher": str, "views": int, "train": bool, "label": str,
+            **{f.name: hints[f.name] for f in dataclasses.fields(TrainConfig)}}
+
+
+def _choices() -> dict[str, tuple[str, ...]]:
+    from ..geometry.layouts import LAYOUT_NAMES
+    from ..splat.rasterize import BACKENDS
+    from ..splat.strategy import STRATEGIES
+
+    return {"strategy": tuple(STRATEGIES), "backend": BACKENDS, "layout": LAYOUT_NAMES}
+
+
+def _unknown(path: Path, where: str, key: str, valid) -> PanoreconInputError:
+    close = difflib.get_close_matches(key, sorted(valid), n=1, cutoff=0.5)
+    hint = f"did you mean {close[0]!r}?" if close else f"expected one of {', '.join(sorted(valid))}"
+    return PanoreconInputError(f"suite {path}: unknown key {key!r} in {where}; {hint}")
+
+
+def _type_name(t) -> str:
+    return {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
+            dict: "a table"}[t]
+
+
+def check_value(path: Path, where: str, key: str, value, schema: dict, choices: dict) -> None:
+    """Raise PanoreconInputError unless ``value`` has ``key``'s type and range."""
+    want = schema[key]
+    ok = isinstance(value, want) and not (want in (int, float) and isinstance(value, bool))
+    if want is float and isinstance(value, int) and not isinstance(value, bool):
+        ok = True
+    if not ok:
+        raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r} is {type(value).__name__}; expected "
+                                  f"{_type_name(want)}")
+    problem = None
+    if key in choices and value not in choices[key]:
+        problem = f"expected one of {', '.join(choices[key])}"
+    elif key in RANGES:
+        try:
+            RANGES[key](str(value))
+        except Exception as e:  # argparse.ArgumentTypeError: says the range
+            problem = str(e)
+    elif want in (int, float) and not (value >= 0 and value == value and abs(value) != float("inf")):
+        problem = "expected a finite value >= 0"
+    if problem:
+        raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r}: {problem}")
+
+
+def _check_table(path: Path, where: str, table: dict, schema: dict, choices: dict, listed: bool = False) -> None:
+    for k, v in table.items():
+        if k not in schema:
+            raise _unknown(path, where, k, schema)
+        if listed:
+            if not isinstance(v, list) or not v:
+                raise PanoreconInputError(f"suite {path}: [grid] {k} must be a non-empty list, got {v!r}")
+            for item in v:
+                check_value(path, where, k, item, schema, choices)
+        else:
+            check_value(path, where, k, v, schema, choices)
+
+
+def _check_top(path: Path, data: dict) -> None:
+    for k, v in data.items():
+        if k not in TOP_KEYS:
+            raise _unknown(path, "the top level", k, TOP_KEYS)
+        if not isinstance(v, TOP_KEYS[k]):
+            raise PanoreconInputError(f"suite {path}: {k} must be {_type_name(TOP_KEYS[k])}, got {v!r}")
+    if any(not isinstance(v, dict) for v in data.get("variants", [])):
+        raise PanoreconInputError(f"suite {path}: variants must be [[variants]] tables")
+    if any(not isinstance(c, str) for c in data.get("rows", [])):
+        raise PanoreconInputError(f"suite {path}: rows must be a list of column names")
+    paper = data.get("paper", {})
+    for k, v in paper.items():
+        if k not in PAPER_KEYS:
+            raise _unknown(path, "[paper]", k, PAPER_KEYS)
+        if not isinstance(v, PAPER_KEYS[k]):
+            raise PanoreconInputError(f"suite {path}: [paper] {k} must be {_type_name(PAPER_KEYS[k])}, got {v!r}")
+    for i, r in enumerate(paper.get("rows", [])):
+        if not isinstance(r, dict):
+            raise PanoreconInputError(f"suite {path}: [paper] rows[{i + 1}] must be a table")
+        for k, v in r.items():
+            if k not in PAPER_ROW_KEYS:
+                raise _unknown(path, f"[paper] rows[{i + 1}]", k, PAPER_ROW_KEYS)
+            if not isinstance(v, PAPER_ROW_KEYS[k]):
+                raise PanoreconInputError(f"suite {path}: [paper] rows[{i + 1}] {k} must be "
+                                          f"{_type_name(PAPER_ROW_KEYS[k])}, got {v!r}")
+
+
 def load_suite(path) -> Suite:
     """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file)."""
     path = Path(path)
@@ -60,19 +165,20 @@ def load_suite(path) -> Suite:
         raise PanoreconInputError(f"suite {path}: no such file (the shipped suites are in eval/suites/)")
     try:
         data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise PanoreconInputError(f"suite {path}: not valid TOML ({e})") from None
+    _check_top(path, data)
+    schema, choices = row_schema(), _choices()
     train_fields = _train_fields()
-    allowed = ROW_KEYS | train_fields
     defaults, grid, variants = data.get("defaults", {}), data.get("grid", {}), data.get("variants", [{}])
-    for where, keys in [("[defaults]", defaults), ("[grid]", grid)] + [(f"[[variants]] {i + 1}", v) for i, v in enumerate(variants)]:
-        unknown = set(keys) - allowed
-        if unknown:
-            raise PanoreconInputError(f"suite {path}: unknown key(s) {sorted(unknown)} in {where}; expected some of {sorted(allowed)}")
-    for k, v in grid.items():
-        if not isinstance(v, list) or not v:
-            raise PanoreconInputError(f"suite {path}: [grid] {k} must be a non-empty list, got {v!r}")
+    _check_table(path, "[defaults]", defaults, schema, choices)
+    _check_table(path, "[grid]", grid, schema, choices, listed=True)
+    for i, v in enumerate(variants):
+        _check_table(path, f"[[variants]] {i + 1}", v, schema, choices)
     row_columns = list(data.get("rows", ["source"]))
+    for c in row_columns:
+        if c not in schema:
+            raise _unknown(path, "rows", c, schema)
     rows = []
     for variant in variants:
         for combo in itertools.product(*grid.values()):
@@ -90,3 +196,46 @@ def load_suite(path) -> Suite:
     if not rows:
         raise PanoreconInputError(f"suite {path}: the grid is empty")
     return Suite(path.stem, data.get("title", path.stem), rows, row_columns, data.get("paper", {}), path)
+
+
+def resolve_names(suite: Suite) -> None:
+    """Check every scene, source and teacher the suite's rows name, before any stage runs: a registered scene,
+    an existing image file or ``prompt:<text>`` with $PANORECON_TEXT2PANO_MODEL set; a registered point source
+    (one that needs a teacher gets one); a teacher spec that loads. Raises PanoreconInputError naming the
+    suite file, the row and the name."""
+    import os
+
+    from ..pipeline.stages import PROMPT_PREFIX, TEXT2PANO_MODEL_ENV
+    from ..scenes import list_scenes
+    from ..sources import get_source
+    from ..teachers import get_teacher
+
+    where = f"suite {suite.path or suite.name}"
+    scenes = {s.name for s in list_scenes()}
+    checked: set = set()
+    for row in suite.rows:
+        what = f"{where}, row {row.label!r}"
+        if row.scene not in scenes and row.scene not in checked:
+            if row.scene.startswith(PROMPT_PREFIX):
+                if not os.environ.get(TEXT2PANO_MODEL_ENV):
+                    raise PanoreconInputError(f"{what}: scene {row.scene!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} "
+                                              "to a local diffusers model folder")
+            elif not Path(row.scene).is_file():
+                close = difflib.get_close_matches(row.scene, sorted(scenes), n=1, cutoff=0.5)
+                raise PanoreconInputError(f"{what}: unknown scene {row.scene!r}"
+                                          + (f"; did you mean {close[0]!r}?" if close else
+                                             "; expected a scene name (see `panorecon scenes list`) or an image"))
+            checked.add(row.scene)
+        try:
+            spec = get_source(row.source)
+        except PanoreconInputError as e:
+            raise PanoreconInputError(f"{what}: {e}") from None
+        if spec.uses_teacher and not row.teacher:
+            raise PanoreconInputError(f"{what}: source {row.source!r} needs a teacher")
+        if row.teacher and row.teacher not in checked and (spec.uses_teacher or row.train is not None):
+            try:
+                get_teacher(row.teacher)
+            except PanoreconInputError as e:
+                if not str(e).startswith("n/a"):  # a teacher that cannot run here gives n/a rows, not an error
+                    raise PanoreconInputError(f"{what}: {e}") from None
+            checked.add(row.teacher)

@@ -40,6 +40,7 @@ import scipy.sparse.linalg as spla
 
 from ..geometry import ViewDepth, erp_directions, sample_erp
 from .affine import align_affine_views
+from .connectivity import check_connectivity
 from .operators import (StencilNormalOperator, laplacian_centres, stacked_operator, transpose_apply,
                         vertical_pairs)
 from .warp import ErpObservation, warp_to_erp
@@ -349,7 +350,8 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         dists, view_shift, affine_report = align_affine_views(views)
     else:
         dists, view_shift, affine_report = [v.to_distance() for v in views], np.zeros(len(views)), None
-    report = {"solver": f"pcg+{cfg.preconditioner}, coarse-to-fine", "levels": [], "affine_alignment": affine_report}
+    report = {"solver": f"pcg+{cfg.preconditioner}, coarse-to-fine", "levels": [], "affine_alignment": affine_report,
+              "connectivity": check_connectivity(views)}
     x = None
     s = None
     prev_h = None

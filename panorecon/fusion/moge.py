@@ -18,6 +18,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..geometry import ViewDepth
+from .connectivity import check_connectivity
 from .lsq import FusionResult, _check_views, _observe, _upsample, pyramid_heights
 from .operators import horizontal_pairs, laplacian_matrix, vertical_pairs
 
@@ -53,7 +54,7 @@ def moge_merge(views: Sequence[ViewDepth], height: int, width: int, *, levels: i
         raise ValueError("moge_merge takes scale-only (relative or metric) views; align affine-invariant views first")
     t0 = time.perf_counter()
     dists = [v.to_distance() for v in views]
-    report = {"solver": "lsmr, coarse-to-fine (MoGe-style)", "levels": []}
+    report = {"solver": "lsmr, coarse-to-fine (MoGe-style)", "levels": [], "connectivity": check_connectivity(views)}
     x = None
     prev = None
     for h in pyramid_heights(height, levels, coarsest=64):

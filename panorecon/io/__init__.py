@@ -1,5 +1,7 @@
 """Checked, atomic file I/O shared by every layer: images, arrays, JSON; and the process's peak memory."""
-from .files import atomic_write, read_image, write_image, save_npy, write_json, PanoreconInputError
+from .files import (atomic_write, file_sha256, quiet_native_stderr, read_image, write_image, save_npy, write_json,
+                    PanoreconInputError)
 from .process import peak_rss_mb
 
-__all__ = ["atomic_write", "read_image", "write_image", "save_npy", "write_json", "PanoreconInputError", "peak_rss_mb"]
+__all__ = ["atomic_write", "file_sha256", "quiet_native_stderr", "read_image", "write_image", "save_npy", "write_json",
+           "PanoreconInputError", "peak_rss_mb"]

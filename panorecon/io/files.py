@@ -23,13 +23,61 @@ def atomic_write(path: str | os.PathLike, suffix: str | None = None):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
-    os.close(fd)
+    try:
+        os.fchmod(fd, 0o666 & ~current_umask())  # mkstemp makes 0600; outputs get the user's normal mode
+    finally:
+        os.close(fd)
     try:
         yield Path(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 (hex) of a file's bytes, read in 1 MiB blocks."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def current_umask() -> int:
+    """The process's umask: from /proc (Linux, thread-safe), else by setting and restoring it."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def quiet_native_stderr():
+    """Silence what native libraries (libpng, Open3D, VTK) print on file descriptor 2 inside the block, for
+    calls whose failure panorecon checks and reports itself. Python's own sys.stderr is left alone."""
+    import sys
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real fd 2 (e.g. captured): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def read_image(path: str | os.PathLike, *, erp: bool = False, unchanged: bool = False) -> np.ndarray:
@@ -42,7 +90,8 @@ def read_image(path: str | os.PathLike, *, erp: bool = False, unchanged: bool = 
         raise PanoreconInputError(f"{path}: no such file")
     flags = cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR
     data = np.fromfile(str(path), dtype=np.uint8)
-    img = cv2.imdecode(data, flags) if data.size else None
+    with quiet_native_stderr():  # libpng/libjpeg print their own complaint about a broken file
+        img = cv2.imdecode(data, flags) if data.size else None
     if img is None:
         raise PanoreconInputError(f"{path}: not a readable image (unknown format, truncated or empty file)")
     if not unchanged or (img.ndim == 3 and img.shape[2] == 3):

@@ -107,6 +107,14 @@ def run_points(cache: StageCache, row: Row, key: str | None = None, provenance: 
     done = cache.done("points", key)
     if done is not None:
         return {**done, "cached": True}
+    with cache.lock("points", key):  # another process may be computing it: wait, then read its result
+        done = cache.done("points", key)
+        if done is not None:
+            return {**done, "cached": True}
+        return {**_compute_points(cache, row, key, provenance), "cached": False}
+
+
+def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | None) -> dict:
     from ..io import PanoreconInputError
     from ..sources import run_source
 
@@ -120,13 +128,14 @@ def run_points(cache: StageCache, row: Row, key: str | None = None, provenance: 
             raise
         record = {"stage": "points", "key": key, "unavailable": str(e), "scene_seconds": scene_s,
                   "seconds": time.perf_counter() - t, "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
-        return {**cache.finish("points", key, record), "cached": False}
+        return cache.finish("points", key, record)
     folder = cache.folder("points", key)
     pc.save_ply(folder / "cloud.ply")
     write_json(folder / "report.json", report)
     record = {"stage": "points", "key": key, "report": report, "scene_seconds": scene_s,
-              "seconds": report["seconds"]["total"], "peak_rss_mb": peak_rss_mb(), "points": len(pc), **(provenance or {})}
-    return {**cache.finish("points", key, record), "cached": False}
+              "seconds": report["seconds"]["total"], "peak_rss_mb": peak_rss_mb(), "points": len(pc),
+              **(provenance or {})}
+    return cache.finish("points", key, record, files=("cloud.ply", "report.json"))
 
 
 def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | None = None,
@@ -137,16 +146,28 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
     done = cache.done("train", key)
     if done is not None:
         return {**done, "cached": True}
-    from ..geometry import PointCloud
-    from ..splat.trainer import TrainConfig, train
-
     points = run_points(cache, row, points_key, provenance)
     if "unavailable" in points:  # nothing to train from; the row reads n/a with the source's reason
         return {"stage": "train", "key": key, "unavailable": points["unavailable"], "cached": False}
+    with cache.lock("train", key):
+        done = cache.done("train", key)
+        if done is not None:
+            return {**done, "cached": True}
+        return {**_compute_train(cache, row, key, points, progress, provenance), "cached": False}
+
+
+def _compute_train(cache: StageCache, row: Row, key: str, points: dict, progress: bool,
+                   provenance: dict | None) -> dict:
+    from ..geometry import PointCloud
+    from ..splat.trainer import TrainConfig, train
+
     scene = load_row_scene(row.scene, row.width, cache)
-    cloud = PointCloud.load_ply(cache.folder("points", points["key"]) / "cloud.ply")
+    cloud_path = cache.folder("points", points["key"]) / "cloud.ply"
+    cloud = PointCloud.load_ply(cloud_path)
+    inputs = {"scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,
+              "points_key": points["key"]}
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
-                    teacher_depth_fn(scene, row.teacher), progress=progress)
+                    teacher_depth_fn(scene, row.teacher), progress=progress, inputs=inputs)
     record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
               "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
-    return {**cache.finish("train", key, record), "cached": False}
+    return cache.finish("train", key, record, files=("metrics.json", "point_cloud.ply"))

@@ -60,6 +60,10 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
         raise PanoreconInputError(f"source {source_name!r} needs --teacher (see `panorecon teachers list`)")
     teacher = get_teacher(teacher_spec) if spec.uses_teacher else None
     pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size)
+    if len(pc) == 0:
+        raise PanoreconInputError(f"source {source_name!r} with teacher {teacher_spec!r} gave no point on scene "
+                                  f"{scene.name!r} (no valid fused depth; at small widths try a larger --width or "
+                                  "--view-size)")
     t = time.perf_counter()
     report = {"source": source_name, "teacher": teacher.name if teacher else None, "scene": scene.name,
               "erp": [scene.width, scene.height], "views": info.get("views"), "view_size": info.get("view_size"),
@@ -67,6 +71,11 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     for key in ("fusion", "panoramas", "baseline"):  # solver statistics; multi-view baselines' inputs and report
         if key in info:
             report[key] = info[key]
+    conn = (info.get("fusion") or {}).get("connectivity")
+    if conn is not None:  # every fusion reports which views its equations tie together
+        report["view_components"] = conn["components"]
+        if conn.get("warning"):
+            report["warnings"] = [conn["warning"]]
     metric = bool(info.get("view_depths") and all(v.metric for v in info["view_depths"]))
     distance = info.get("distance")
     if distance is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -12,14 +13,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..io import atomic_write, peak_rss_mb, write_image, write_json
+from ..io import peak_rss_mb, write_image, write_json
 from ..metrics.lpips import lpips_distance, lpips_or_reason
+from .checkpoint import MODEL_KEYS, checkpoint_inputs, load_checkpoint, save_checkpoint
 from .labels import LabelView, make_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
 from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
 from .strategy import STRATEGIES
+
+log = logging.getLogger("panorecon.train")
 
 
 def _f(default, help: str):
@@ -93,9 +97,11 @@ def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
                             fused=True)
 
 
-def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True) -> dict:
+def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True,
+          inputs: dict | None = None) -> dict:
     """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
-    (3DGS layout), renders/, metrics.json and ckpt.pt (resumed when present and made by the same config)."""
+    (3DGS layout), renders/, metrics.json and ckpt.pt, resumed when present and written for the same scene,
+    width, config, cloud and ``inputs`` (e.g. source and teacher names; see ``checkpoint.py``)."""
     from tqdm import tqdm
 
     cfg = config
@@ -119,17 +125,18 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     strategy = STRATEGIES[cfg.strategy](refine_stop=cfg.iters // 2)
     start, history = 0, []
     ckpt = out / "ckpt.pt"
-    if ckpt.exists():
-        state = torch.load(ckpt, weights_only=False)
-        if state["config"] != cfg.digest():
-            raise ValueError(f"{ckpt} was written by a different configuration; remove it or use another --out")
-        model = GaussianModel(*[state["model"][n] for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
+    keys = checkpoint_inputs(scene, point_cloud, cfg.digest(), inputs)
+    state = load_checkpoint(ckpt, keys, cfg.iters)
+    torch.manual_seed(cfg.seed)  # split sampling; a resumed run continues the stored generator state
+    if state is not None:
+        model = GaussianModel(*[state["model"][n] for n in MODEL_KEYS])
         opt = _adam(model, groups)
         opt.load_state_dict(state["optimizer"])
         start, history = state["iteration"], state["history"]
         strategy.load_state_dict(state["strategy"])
+        torch.set_rng_state(state["rng"])
+        log.info("resuming %s at step %d of %d", ckpt, start, cfg.iters)
     t = time.perf_counter()
-    torch.manual_seed(cfg.seed + start)  # split sampling; a resumed run reseeds from its iteration
     gen = np.random.default_rng(cfg.seed)
     order = gen.integers(0, len(labels), size=cfg.iters)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
@@ -156,10 +163,9 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
             history.append({"iteration": it + 1, "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
             bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
         if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
-            with atomic_write(ckpt) as tmp:
-                torch.save({"iteration": it + 1, "config": cfg.digest(), "history": history, "optimizer": opt.state_dict(),
-                            "strategy": strategy.state_dict(),
-                            "model": {n: p.detach() for n, p in model.named_parameters()}}, tmp)
+            save_checkpoint(ckpt, keys, {"iteration": it + 1, "history": history, "optimizer": opt.state_dict(),
+                                         "strategy": strategy.state_dict(), "rng": torch.get_rng_state(),
+                                         "model": {n: p.detach() for n, p in model.named_parameters()}})
     seconds["train"] = time.perf_counter() - t
     t = time.perf_counter()
     metrics = {"pseudo-label": _evaluate(model, labels, cfg, backend),

@@ -22,7 +22,7 @@ from .base import ErpDepth
 class FileTeacher:
     def __init__(self, spec: str):
         path, _, query = spec.partition("?")
-        opts = {k: v[-1] for k, v in parse_qs(query).items()}
+        opts = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
         unknown = set(opts) - {"scale", "metric"}
         if unknown:
             raise PanoreconInputError(f"teacher file:{spec}: unknown option(s) {sorted(unknown)}; expected scale=, metric=")
@@ -54,8 +54,12 @@ class FileTeacher:
                 raise PanoreconInputError(f"{self.path}: expected a single-channel depth image, got {raw.shape[2]} channels")
             raw = raw.astype(np.float64)
             raw[raw == 0] = np.nan
-        d = (raw * self.scale).astype(np.float32)
-        d[~(d > 0)] = np.nan
+        with np.errstate(over="ignore", invalid="ignore"):
+            d = (raw * self.scale).astype(np.float32)
+        d[~((d > 0) & np.isfinite(d))] = np.nan
+        if not np.isfinite(d).any():
+            raise PanoreconInputError(f"{self.path}: holds no valid depth (every value is 0, NaN, Inf or negative); "
+                                      "expected positive ray distances")
         return d
 
     def _for(self, scene) -> np.ndarray:

@@ -8,19 +8,23 @@ from .presets import PRESETS
 
 def add_generate_parser(sub) -> None:
     """Register ``panorecon generate`` on the CLI's subparsers."""
+    from .. import cli_types as T
+
     g = sub.add_parser("generate", help="text -> 360° panorama (sliding-window diffusion with a seam block)")
     what = g.add_mutually_exclusive_group(required=True)
     what.add_argument("--prompt", help="scene description (the panorama trigger phrase is prepended)")
     what.add_argument("--preset", choices=sorted(PRESETS), help="one of the paper's Table 1 prompts")
     g.add_argument("--model", required=True, help="local diffusers folder, or a model id already in the local HF cache")
     g.add_argument("--lora", default=None, help="LoRA weights (loaded with diffusers' own loader)")
-    g.add_argument("--steps", type=int, default=50)
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--width", type=int, default=2048, help="panorama width (height = width / 2)")
-    g.add_argument("--window", type=int, default=64, help="sliding-window width in latent columns (8 px each)")
-    g.add_argument("--stride", type=int, default=16, help="latent columns between sliding windows")
+    g.add_argument("--steps", type=T.STEPS, default=50)
+    g.add_argument("--seed", type=T.SEED, default=0)
+    g.add_argument("--width", type=T.ERP_WIDTH, default=2048, help="panorama width (height = width / 2)")
+    g.add_argument("--window", type=T.int_in(1, 4096, "window"), default=64,
+                   help="sliding-window width in latent columns (8 px each)")
+    g.add_argument("--stride", type=T.int_in(1, 4096, "stride"), default=16,
+                   help="latent columns between sliding windows")
     g.add_argument("--no-seam-block", action="store_true", help="turn the seam block off (for comparison)")
-    g.add_argument("--out", required=True, help="output PNG")
+    g.add_argument("--out", required=True, type=T.out_file, help="output PNG")
     g.set_defaults(fn=run_generate)
 
 

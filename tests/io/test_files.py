@@ -50,3 +50,35 @@ def test_json_refuses_nan(tmp_path):
     with pytest.raises(ValueError):
         write_json(tmp_path / "x.json", {"psnr": float("nan")})
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_atomic_write_gives_the_users_normal_permissions(tmp_path, umask):
+    import os
+
+    from panorecon.geometry import PointCloud
+
+    old = os.umask(umask)
+    try:
+        write_json(tmp_path / "a.json", {"a": 1})
+        write_image(tmp_path / "b.png", np.zeros((4, 8, 3), np.uint8))
+        PointCloud(np.ones((3, 3)), np.zeros((3, 3))).save_ply(tmp_path / "c.ply")
+        with open(tmp_path / "ref", "w"):  # what open() gives: the user's normal mode
+            pass
+    finally:
+        os.umask(old)
+    want = 0o666 & ~umask
+    assert (os.stat(tmp_path / "ref").st_mode & 0o777) == want
+    for name in ("a.json", "b.png", "c.ply"):
+        assert (os.stat(tmp_path / name).st_mode & 0o777) == want, name
+
+
+def test_a_broken_image_is_one_error_and_libpng_stays_quiet(tmp_path, capfd):
+    write_image(tmp_path / "ok.png", (np.arange(64 * 128 * 3) % 251).astype(np.uint8).reshape(64, 128, 3))
+    data = (tmp_path / "ok.png").read_bytes()
+    (tmp_path / "cut.png").write_bytes(data[: len(data) * 2 // 3])
+    capfd.readouterr()
+    with pytest.raises(PanoreconInputError, match="cut.png"):
+        read_image(tmp_path / "cut.png", erp=True)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""  # libpng's own "libpng error: ..." is not shown at the file-descriptor level

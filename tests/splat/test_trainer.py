@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from panorecon.io import PanoreconInputError
 from panorecon.scenes import load_scene
 from panorecon.sources import run_source
 from panorecon.splat import trainer as trainer_mod
@@ -66,14 +67,16 @@ def test_an_interrupted_run_resumes_to_the_same_state(setup, tmp_path, monkeypat
     full = train(scene, pc, cfg(), tmp_path / "full", depth_fn, progress=False)
     interrupt_training(monkeypatch, lambda: train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False))
     assert (tmp_path / "resumed" / "ckpt.pt").exists()
+    # a checkpoint written for other inputs (here: another teacher, another cloud) is refused, not resumed
+    with pytest.raises(PanoreconInputError, match="different run.*teacher"):
+        train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False, inputs={"teacher": "sim:other"})
+    with pytest.raises(PanoreconInputError, match="different run.*cloud"):
+        train(scene, pc.subset(slice(1, None)), cfg(), tmp_path / "resumed", depth_fn, progress=False)
     resumed = train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False)
     a, b = load_ply(tmp_path / "full" / "point_cloud.ply"), load_ply(tmp_path / "resumed" / "point_cloud.ply")
     for x, y in zip(a.parameters(), b.parameters()):
         torch.testing.assert_close(x, y, atol=1e-6, rtol=1e-5)
     assert resumed["pseudo-label"]["psnr"] == pytest.approx(full["pseudo-label"]["psnr"], abs=1e-4)
-    with pytest.raises(ValueError, match="different configuration"):
-        torch.save({"config": "other"}, tmp_path / "resumed" / "ckpt.pt")
-        train(scene, pc, cfg(), tmp_path / "resumed", depth_fn, progress=False)
 
 
 def test_strategy_clones_splits_prunes_and_keeps_adam_aligned():

@@ -1,0 +1,59 @@
+"""Every fusion reports which views its equations connect; views that do not connect are flagged loudly."""
+import logging
+
+import numpy as np
+import pytest
+
+from panorecon.cli import main
+from panorecon.scenes import load_scene
+from panorecon.sources import run_source
+
+
+@pytest.fixture(scope="module")
+def scene_and_metric_file(tmp_path_factory):
+    scene = load_scene("bedroom", 64)
+    path = tmp_path_factory.mktemp("teacher") / "truth.npy"
+    np.save(path, np.where(np.isfinite(scene.distance), scene.distance, np.nan))
+    return scene, f"file:{path}?metric=1", load_scene("bedroom", 256)
+
+
+@pytest.mark.parametrize("teacher", ["sim:clean", "sim:relative", "sim:affine-disparity", "metric-file"])
+@pytest.mark.parametrize("source", ["fibonacci", "moge-merge"])
+def test_every_teacher_kind_reports_connectivity_and_two_fibonacci_views_are_flagged(
+        scene_and_metric_file, caplog, teacher, source):
+    scene, metric_file, larger = scene_and_metric_file
+    teacher = metric_file if teacher == "metric-file" else teacher
+    if source == "moge-merge":  # (at 64 px the affine alignment of its 12 small views leaves no valid depth)
+        _, report = run_source(larger, source, teacher)  # icosahedron vertices: connected
+        assert report["view_components"] == 1 and "warnings" not in report
+        return
+    with caplog.at_level(logging.WARNING, logger="panorecon.fusion"):
+        _, two = run_source(scene, source, teacher, views=2)
+    assert two["view_components"] == 2 and two["fusion"]["connectivity"]["groups"] == [[0], [1]]
+    assert "do not connect" in two["warnings"][0] and "do not connect" in caplog.text
+    _, twelve = run_source(scene, source, teacher, views=12)
+    assert twelve["view_components"] == 1 and "warnings" not in twelve
+
+
+def test_the_cli_prints_the_warning(tmp_path, capsys):
+    assert main(["points", "bedroom", "--source", "fibonacci", "--teacher", "sim:relative", "--views", "2",
+                 "--width", "64", "--out", str(tmp_path / "c.ply"), "--report", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING: the views do not connect" in out
+    assert "do not connect" in (tmp_path / "r.json").read_text()
+
+
+def test_result_rows_and_results_md_carry_the_flag(tmp_path):
+    from panorecon.evaluation.ablate import result_row
+    from panorecon.evaluation.report import write_results_md
+    from panorecon.evaluation.suite import Suite
+    from panorecon.pipeline import Row
+    import pandas as pd
+
+    scene = load_scene("bedroom", 64)
+    _, report = run_source(scene, "fibonacci", "sim:clean", views=2)
+    row = Row("bedroom", 64, "fibonacci", "sim:clean", views=2, label="two")
+    rec = result_row(row, {"report": report, "seconds": 1.0, "peak_rss_mb": 1.0}, None, {"versions": {}}, False, False)
+    assert rec["view_components"] == 2 and "do not connect" in rec["warning"]
+    write_results_md(pd.DataFrame([rec]), Suite("s", "t", [row], ["label"]), tmp_path, 1.0)
+    assert "**WARNING** (two, bedroom): the views do not connect" in (tmp_path / "results.md").read_text()

@@ -1,0 +1,56 @@
+"""PLY reading is checked: header, size against the vertex count, what Open3D read, finite positions."""
+import numpy as np
+import pytest
+from hypothesis import given, strategies as st
+
+from panorecon.geometry import PointCloud
+from panorecon.geometry.pointcloud import check_ply_header
+from panorecon.io import PanoreconInputError
+
+
+@pytest.fixture(scope="module")
+def ply_bytes(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ply")
+    rng = np.random.default_rng(0)
+    PointCloud(rng.normal(size=(500, 3)), rng.random((500, 3)), view_id=np.arange(500) % 7).save_ply(d / "a.ply")
+    return (d / "a.ply").read_bytes()
+
+
+def test_round_trip_keeps_points_colours_and_view_ids(tmp_path, ply_bytes):
+    (tmp_path / "a.ply").write_bytes(ply_bytes)
+    pc = PointCloud.load_ply(tmp_path / "a.ply")
+    assert len(pc) == 500 and check_ply_header(tmp_path / "a.ply") == 500
+    np.testing.assert_array_equal(pc.view_id, np.arange(500) % 7)
+
+
+@given(frac=st.floats(min_value=0.0, max_value=0.999))
+def test_a_cut_off_ply_is_refused_not_read_as_points_at_the_origin(tmp_path_factory, ply_bytes, frac):
+    path = tmp_path_factory.mktemp("cut") / "cut.ply"
+    path.write_bytes(ply_bytes[: int(len(ply_bytes) * frac)])
+    with pytest.raises(PanoreconInputError, match="cut.ply"):
+        PointCloud.load_ply(path)
+
+
+def test_extra_bytes_nan_positions_and_non_ply_are_refused(tmp_path, ply_bytes, capfd):
+    (tmp_path / "long.ply").write_bytes(ply_bytes + b"\0" * 15)
+    (tmp_path / "text.ply").write_text("hello")
+    (tmp_path / "zero.ply").write_bytes(ply_bytes.replace(b"element vertex 500", b"element vertex 0"))
+    PointCloud(np.ones((4, 3)), np.zeros((4, 3))).save_ply(tmp_path / "nan.ply")
+    raw = bytearray((tmp_path / "nan.ply").read_bytes())
+    body = raw.index(b"end_header\n") + len(b"end_header\n")
+    raw[body:body + 4] = np.float32(np.nan).tobytes()
+    (tmp_path / "nan.ply").write_bytes(bytes(raw))
+    capfd.readouterr()
+    for name, needle in [("long.ply", "expected"), ("text.ply", "not a PLY"), ("zero.ply", "no vertices"),
+                         ("nan.ply", "NaN or Inf"), ("missing.ply", "no such file")]:
+        with pytest.raises(PanoreconInputError, match=needle) as e:
+            PointCloud.load_ply(tmp_path / name)
+        assert name in str(e.value)
+    assert capfd.readouterr().err == ""  # Open3D's own "Read PLY failed" does not reach the terminal
+
+
+def test_an_ascii_ply_from_elsewhere_is_read(tmp_path):
+    (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+                                    "property float z\nend_header\n0 0 1\n1 2 3\n")
+    pc = PointCloud.load_ply(tmp_path / "a.ply")
+    np.testing.assert_allclose(pc.xyz, [[0, 0, 1], [1, 2, 3]])
