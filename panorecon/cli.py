@@ -175,7 +175,7 @@ def cmd_train(args) -> int:
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
     m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress,
-              inputs={"source": args.source, "teacher": args.teacher, "views": args.views})
+              inputs={"source": args.source, "teacher": args.teacher, "views": args.views, "depth": args.depth})
     held = m["held-out"]
     held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
