@@ -27,9 +27,11 @@ def cmd_scenes_list(args) -> int:
 
 
 def cmd_render(args) -> int:
+    import dataclasses
+
     import numpy as np
 
-    from .io import save_npy, write_image
+    from .io import save_npy, write_image, write_json
     from .scenes import load_scene
 
     t0 = time.perf_counter()
@@ -41,7 +43,25 @@ def cmd_render(args) -> int:
     write_image(out / "mask.png", (mask * 255).astype(np.uint8))
     if scene.distance is not None:
         save_npy(out / "distance.npy", scene.distance.astype(np.float32))
-    print(f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s -> {out}"
+    heldout_note = ""
+    radius = None
+    if scene.world is not None and getattr(args, "heldout", 0):
+        # the true views `train` holds out, so that the folder trains and evaluates without Open3D
+        from .scenes.rendered import RecordingWorld, save_heldout
+        from .splat.labels import make_heldout_views
+        from .splat.trainer import TrainConfig
+
+        cfg = TrainConfig()
+        radius = scene.world.free_space_radius()
+        for res in args.heldout_res:
+            rec = RecordingWorld(scene.world)
+            make_heldout_views(dataclasses.replace(scene, world=rec), args.heldout, res, cfg.fov_deg, cfg.seed)
+            save_heldout(out, rec.cameras, rec.renders)
+        heldout_note = f", {args.heldout} held-out views at {'/'.join(map(str, args.heldout_res))} px"
+    write_json(out / "scene.json", {"name": scene.name, "kind": scene.kind, "description": scene.description,
+                                    "distance_kind": scene.distance_kind, "meta": scene.meta,
+                                    "free_space_radius": radius})
+    print(f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s{heldout_note} -> {out}"
           + ("" if scene.distance is not None else " (no depth: distance.npy not written)"))
     return 0
 
@@ -205,6 +225,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--width", type=int, default=None, help="ERP width in pixels (height = width / 2)")
+    r.add_argument("--heldout", type=int, default=8,
+                   help="synthetic scenes: true held-out views to record (as `train --heldout`; 0: none)")
+    r.add_argument("--heldout-res", type=int, nargs="+", default=[128],
+                   help="sizes of the recorded held-out views (each a `train --res`)")
     r.set_defaults(fn=cmd_render)
 
     g = sub.add_parser("gt-cloud", help="the ground-truth coloured point cloud from the true distance")

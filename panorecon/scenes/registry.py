@@ -1,4 +1,6 @@
-"""Scene registry: every scene by name, synthetic and real, plus any ERP image given by path."""
+"""Scene registry: every scene by name, synthetic and real, plus any ERP image given by path and any folder
+written by ``panorecon render`` (``rendered:<dir>`` or the folder's path). Only a synthetic scene's build
+imports Open3D."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -32,9 +34,21 @@ def register_scene(spec: SceneSpec) -> SceneSpec:
     return spec
 
 
+def _build_synthetic(name: str, width: int | None) -> Scene:
+    from .synthetic import build_scene  # Open3D: imported only when a synthetic scene is built
+
+    return build_scene(name, width)
+
+
 def _ensure_builtin() -> None:
-    # importing the modules registers their scenes
-    from . import real, synthetic  # noqa: F401
+    # importing the module registers the real scenes; the synthetic ones come from the Open3D-free catalog
+    from . import real  # noqa: F401
+    from .catalog import SYNTHETIC_SCENES
+
+    for name, description in SYNTHETIC_SCENES.items():
+        if name not in _SCENES:
+            register_scene(SceneSpec(name, "synthetic", True, description,
+                                     lambda width, _n=name: _build_synthetic(_n, width)))
 
 
 def list_scenes() -> list[SceneSpec]:
@@ -49,10 +63,15 @@ def load_scene(name: str, width: int | None = None) -> Scene:
         raise PanoreconInputError(f"--width {width}: expected an even width between 4 and 16384 pixels")
     if name in _SCENES:
         return _SCENES[name].build(width)
+    if name.startswith("rendered:") or Path(name).is_dir():
+        from .rendered import load_rendered
+
+        return load_rendered(Path(name.removeprefix("rendered:")), width)
     if Path(name).suffix.lower() in (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".exr"):
         from .real import scene_from_image
 
         return scene_from_image(Path(name), width)
     raise PanoreconInputError(
-        f"unknown scene {name!r}: expected one of {', '.join(sorted(_SCENES))}, or the path of an equirectangular image"
+        f"unknown scene {name!r}: expected one of {', '.join(sorted(_SCENES))}, the path of an equirectangular image, "
+        "or a folder written by `panorecon render`"
     )
