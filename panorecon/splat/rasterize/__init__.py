@@ -50,7 +50,8 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     """Render Gaussians into C cameras.
 
     means [N,3] metres; quats [N,4] wxyz (any norm, zero = identity); scales [N,3] metres (linear);
-    opacities [N] in [0,1]; colors [N,3] RGB or SH coefficients [N,K,3] with ``sh_degree``; viewmats [C,4,4]
+    opacities [N] in [0,1]; colors [N,3] RGB, [C,N,D] per camera, or SH coefficients [N,K,3] with ``sh_degree``;
+    viewmats [C,4,4]
     world-to-camera (OpenCV); Ks [C,3,3]. Returns image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1]
     (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
     radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
@@ -67,9 +68,11 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     means2d, conics, depths, radii = project(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane,
                                              eps2d)
     if sh_degree is None:
-        if colors.dim() != 2 or colors.shape[-1] != 3:
-            raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB (or pass sh_degree for [N, K, 3])")
-        cols = colors[None].expand(len(viewmats), -1, -1)
+        per_camera = colors.dim() == 3 and colors.shape[0] == len(viewmats) and (backend == "torch" or colors.shape[-1] == 3)
+        if not per_camera and (colors.dim() != 2 or colors.shape[-1] != 3):
+            raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB, [C, N, D] per camera (D = 3 "
+                             "on the cpu backend), or SH coefficients [N, K, 3] with sh_degree")
+        cols = colors if per_camera else colors[None].expand(len(viewmats), -1, -1)
     else:
         campos = -torch.einsum("cji,cj->ci", viewmats[:, :3, :3], viewmats[:, :3, 3])
         dirs = means[None] - campos[:, None]
