@@ -146,7 +146,12 @@ def _initial_cloud(args, scene, cloud_path, report_path):
     from .io import write_json
     from .sources import run_source
 
-    pc, report = run_source(scene, args.source, args.teacher, args.views, view_size=getattr(args, "view_size", None))
+    from .device import resolve_device
+    from .pipeline.stages import fusion_config_for
+
+    fusion = fusion_config_for(resolve_device(getattr(args, "device", "auto")))
+    pc, report = run_source(scene, args.source, args.teacher, args.views, fusion,
+                            view_size=getattr(args, "view_size", None))
     pc.save_ply(cloud_path)
     if report_path:
         write_json(report_path, report)
@@ -161,9 +166,11 @@ def _initial_cloud(args, scene, cloud_path, report_path):
 
 
 def cmd_points(args) -> int:
+    from .device import resolve_device
     from .scenes import load_scene
     from .sources import get_source
 
+    resolve_device(args.device)  # --device cuda without CUDA: refused before any work
     get_source(args.source)  # an unknown source fails before the scene is rendered
     _initial_cloud(args, load_scene(args.scene, args.width), args.out, args.report)
     return 0
@@ -172,22 +179,43 @@ def cmd_points(args) -> int:
 def cmd_train(args) -> int:
     import dataclasses
 
+    from .device import resolve_device
     from .pipeline import teacher_depth_fn
     from .scenes import load_scene
     from .splat.trainer import TrainConfig, train
 
+    device = resolve_device(getattr(args, "device", "auto"))
+    _check_backend(args, device)
     scene = load_scene(args.scene, args.width)
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
-    m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress)
+    m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress,
+              device=device)
     held = m["held-out"]
     held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
           f"{m['pseudo-label']['ssim']:.3f}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
-          f"{m['seconds']['total']:.1f} s; peak {m['peak_rss_mb']:.0f} MB -> {args.out}")
+          f"{m['seconds']['total']:.1f} s ({m['seconds']['train']:.1f} s training); peak {m['peak_rss_mb']:.0f} MB; "
+          f"{m['backend']} on {m['device_name']} -> {args.out}")
     return 0
+
+
+def _check_backend(args, device) -> None:
+    """A backend that cannot render on ``device`` is bad input: one line, before any work."""
+    from .splat.rasterize import cpu_backend, gsplat_backend
+
+    backend = getattr(args, "backend", None) or "auto"
+    if backend == "gsplat" and device.type != "cuda":
+        raise PanoreconInputError(f"--backend gsplat renders on CUDA, but the device is {device}: use --device cuda")
+    if backend == "gsplat" and not gsplat_backend.available():
+        raise PanoreconInputError(f"--backend gsplat: {gsplat_backend.unavailable_reason()}")
+    if backend == "cpu" and device.type != "cpu":
+        raise PanoreconInputError(f"--backend cpu renders on the CPU, but the device is {device}: use --backend "
+                                  "gsplat or torch, or --device cpu")
+    if backend == "cpu" and not cpu_backend.available():
+        raise PanoreconInputError("--backend cpu: the C++ rasterizer could not be built here (see the log)")
 
 
 # ---------------------------------------------------------------- evaluation
@@ -196,10 +224,13 @@ def cmd_ablate(args) -> int:
     from .evaluation.report import average_table
     from .evaluation.suite import load_suite
 
+    from .device import resolve_device
+
+    resolve_device(args.device)
     suite = load_suite(args.suite)
     print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
     frame = run_suite(suite, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
-                      cache_dir=args.cache, progress=not args.no_progress)
+                      cache_dir=args.cache, progress=not args.no_progress, device=args.device)
     cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
     print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
     print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png")
@@ -209,10 +240,16 @@ def cmd_ablate(args) -> int:
 def cmd_bench(args) -> int:
     from .evaluation.bench import run_bench
 
-    return run_bench(args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline)
+    return run_bench(args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline,
+                     device=args.device)
 
 
 # ---------------------------------------------------------------- parser
+def _add_device(p) -> None:
+    p.add_argument("--device", default="auto",
+                   help="auto (CUDA when present), cpu or cuda[:K]: where fusion's CG and training run")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="panorecon", description=__doc__)
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -259,6 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("--width", type=int, default=None, help="ERP width")
     pt.add_argument("--out", required=True, help="output .ply")
     pt.add_argument("--report", default=None, help="output report .json")
+    _add_device(pt)
     pt.set_defaults(fn=cmd_points)
 
     tr = sub.add_parser("train", help="fit Gaussians from a point source to the scene's pseudo-labels")
@@ -270,8 +308,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--iters", type=int, default=None, help="optimisation steps (default 3000)")
     tr.add_argument("--res", type=int, default=None, help="label view size in pixels (default 128)")
     tr.add_argument("--labels", type=int, default=None, help="pseudo-label views (default 240)")
-    tr.add_argument("--backend", choices=["auto", "torch", "cpu"], default=None,
-                    help="rasterizer (training runs on CPU tensors; gsplat serves CUDA tensors through rasterize())")
+    tr.add_argument("--backend", choices=["auto", "torch", "cpu", "gsplat"], default=None,
+                    help="rasterizer: auto (gsplat on CUDA, cpu on the CPU), torch (the reference), cpu (C++), "
+                         "gsplat (CUDA)")
+    _add_device(tr)
     tr.add_argument("--strategy", choices=["default", "adaptive"], default=None,
                     help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)")
     tr.add_argument("--seed", type=int, default=None)
@@ -288,6 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     ab.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (with --engine dask)")
     ab.add_argument("--cache", default=None, help="stage cache folder shared between suites (default OUT/cache)")
     ab.add_argument("--no-progress", action="store_true")
+    _add_device(ab)
     ab.set_defaults(fn=cmd_ablate)
 
     be = sub.add_parser("bench", help="the benchmark CI job: tiny suite + micro-benchmarks against a baseline")
@@ -296,6 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--baseline", default="benchmarks/baseline.json")
     be.add_argument("--out", default=None, help="also write the result JSON here")
     be.add_argument("--update-baseline", action="store_true", help="store this run as the baseline")
+    _add_device(be)
     be.set_defaults(fn=cmd_bench)
 
     from .export import add_export_parser
