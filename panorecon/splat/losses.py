@@ -67,9 +67,9 @@ def pearson_depth_loss(rendered: torch.Tensor, teacher: torch.Tensor, valid: tor
     y0 = torch.where(ok, teacher.to(rendered.dtype), torch.zeros_like(rendered))
     x = (x0 - x0.sum() / n.clamp_min(1)) * w
     y = (y0 - y0.sum() / n.clamp_min(1)) * w
-    denom = torch.sqrt((x * x).sum() * (y * y).sum())
-    use = (n >= 2) & (denom > 1e-12)
-    corr = (x * y).sum() / torch.where(use, denom, torch.ones_like(denom))
+    prod = (x * x).sum() * (y * y).sum()
+    use = (n >= 2) & (prod > 1e-24)  # denominator > 1e-12; sqrt taken only where used (finite gradient)
+    corr = (x * y).sum() / torch.sqrt(torch.where(use, prod, torch.ones_like(prod)))
     return torch.where(use, 1 - corr, x0.sum() * 0)
 
 
