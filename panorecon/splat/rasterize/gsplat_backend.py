@@ -71,7 +71,7 @@ def build_seconds() -> float | None:
 
 def rasterize_gsplat(means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree, near_plane,
                      far_plane, backgrounds, eps2d, tile_size, return_contrib: bool = False):
-    """-> (image [C,H,W,3], alpha [C,H,W,1], accumulated z [C,H,W,1], meta with means2d, conics, depths,
+    """-> (image [C,H,W,D], alpha [C,H,W,1], accumulated z [C,H,W,1], meta with means2d, conics, depths,
     radii [C,N] (the larger per-axis radius) and, with ``return_contrib``, weight_sum / weight_max / trans_max
     [C,N] (detached))."""
     from gsplat import rasterization
@@ -93,7 +93,7 @@ def rasterize_gsplat(means, quats, scales, opacities, colors, viewmats, Ks, widt
             image_ids, pixel_ids, gaussian_ids = blended_pairs(meta, width, height, tile_size)
             result.update(contributions_from_pairs(meta["means2d"], meta["conics"], meta["opacities"],
                                                    meta["depths"], image_ids, pixel_ids, gaussian_ids, width, height))
-    return out[..., :3], alpha, out[..., 3:4], result
+    return out[..., :-1], alpha, out[..., -1:], result  # RGB+D: the colour channels, then z
 
 
 def blended_pairs(meta: dict, width: int, height: int, tile_size: int):
