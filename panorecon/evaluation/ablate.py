@@ -103,11 +103,13 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
     # keys fixed once, here: workers use them, so the run stays consistent even if the code changes meanwhile
     tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
     points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
-    _run_tasks(functools.partial(_points_task, device=device), list(points_todo.values()), str(cache.root), jobs, engine, scheduler, "points", progress)
+    _run_tasks(functools.partial(_points_task, device=device), list(points_todo.values()), str(cache.root), jobs,
+               engine, scheduler, "points", progress)
     points_done = {t[1]: cache.done("points", t[1]) for t in tasks}
     train_todo = {t[2]: t for t in tasks if t[2] is not None and "unavailable" not in points_done[t[1]]
                   and cache.done("train", t[2]) is None}
-    _run_tasks(functools.partial(_train_task, device=device), list(train_todo.values()), str(cache.root), jobs, engine, scheduler, "train", progress)
+    _run_tasks(functools.partial(_train_task, device=device), list(train_todo.values()), str(cache.root), jobs,
+               engine, scheduler, "train", progress)
     env = environment()
     frame = pd.DataFrame([result_row(row, points_done[pk], cache.done("train", tk) if tk else None, env,
                                      pk not in points_todo, tk is not None and tk not in train_todo)

@@ -22,8 +22,9 @@ aggregated weight and target, so the system is H*W x H*W whatever the number of 
 is sparse SPD (13-point stencil), solved coarse to fine: a direct solve at the coarsest level (assembled
 sparse matrix), then Jacobi-preconditioned conjugate gradients on the matrix-free stencil operator
 (``operators.StencilNormalOperator``: array shifts, no assembly; optionally pyamg smoothed-aggregation AMG on
-the assembled matrix; with ``cg_device`` the same Jacobi-PCG runs in torch, on a GPU when asked), warm-started from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent),
-its gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
+the assembled matrix; with ``cg_device`` the same Jacobi-PCG runs in torch, on a GPU when asked), warm-started
+from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent), its
+gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
 Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``).
 """
 from __future__ import annotations
@@ -40,8 +41,8 @@ import scipy.sparse.linalg as spla
 
 from ..geometry import ViewDepth, erp_directions, sample_erp
 from .affine import align_affine_views
-from .operators import (StencilNormalOperator, TorchStencilOperator, laplacian_centres, stacked_operator, transpose_apply,
-                        vertical_pairs)
+from .operators import (StencilNormalOperator, TorchStencilOperator, laplacian_centres, stacked_operator,
+                        transpose_apply, vertical_pairs)
 from .warp import ErpObservation, warp_to_erp
 
 

@@ -112,7 +112,8 @@ def load_rendered(folder: Path, width: int | None = None) -> Scene:
         info = json.loads(info_path.read_text())
         name, kind, distance_kind = info["name"], info["kind"], info["distance_kind"]
     except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise PanoreconInputError(f"{info_path}: unreadable ({type(e).__name__}: {e}); write the folder again") from None
+        raise PanoreconInputError(f"{info_path}: unreadable ({type(e).__name__}: {e}); write the folder "
+                                  "again") from None
     rgb = read_image(folder / "pano.png", erp=True)
     if width is not None and width != rgb.shape[1]:
         raise PanoreconInputError(f"--width {width}: {folder} was rendered at width {rgb.shape[1]}; render it again "
@@ -125,7 +126,8 @@ def load_rendered(folder: Path, width: int | None = None) -> Scene:
             raise PanoreconInputError(f"{dpath}: expected float32 {rgb.shape[:2]} ray distance, got "
                                       f"{distance.dtype} {distance.shape}")
     elif distance_kind != "none":
-        raise PanoreconInputError(f"{folder}: scene.json says distance_kind={distance_kind!r} but distance.npy is missing")
+        raise PanoreconInputError(f"{folder}: scene.json says distance_kind={distance_kind!r} but distance.npy is "
+                                  "missing")
     sky = np.isposinf(distance) if distance is not None else np.zeros(rgb.shape[:2], bool)
     radius = info.get("free_space_radius")
     world = RecordedWorld(folder, float(radius)) if radius is not None else None

@@ -68,7 +68,8 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     means2d, conics, depths, radii = project(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane,
                                              eps2d)
     if sh_degree is None:
-        per_camera = colors.dim() == 3 and colors.shape[0] == len(viewmats) and (backend == "torch" or colors.shape[-1] == 3)
+        per_camera = (colors.dim() == 3 and colors.shape[0] == len(viewmats)
+                      and (backend == "torch" or colors.shape[-1] == 3))
         if not per_camera and (colors.dim() != 2 or colors.shape[-1] != 3):
             raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB, [C, N, D] per camera (D = 3 "
                              "on the cpu backend), or SH coefficients [N, K, 3] with sh_degree")

@@ -47,7 +47,8 @@ def _try_run() -> None:
                       eye, K, 16, 16)
         torch.cuda.synchronize()
     except Exception as e:  # a failed kernel build: report it, fall back to the other backends
-        _state.update(ok=False, error=f"gsplat did not run: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
+        first_line = str(e).splitlines()[0] if str(e) else ""
+        _state.update(ok=False, error=f"gsplat did not run: {type(e).__name__}: {first_line}")
         log.warning("gsplat backend unavailable (%s)", _state["error"])
         return
     _state.update(ok=True, error=None, seconds=time.perf_counter() - t)
