@@ -37,9 +37,11 @@ def cmd_scenes_list(args) -> int:
 
 
 def cmd_render(args) -> int:
+    import dataclasses
+
     import numpy as np
 
-    from .io import save_npy, write_image
+    from .io import save_npy, write_image, write_json
     from .scenes import scene_from_args
 
     t0 = time.perf_counter()
@@ -51,7 +53,25 @@ def cmd_render(args) -> int:
     write_image(out / "mask.png", (mask * 255).astype(np.uint8))
     if scene.distance is not None:
         save_npy(out / "distance.npy", scene.distance.astype(np.float32))
-    print(f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s -> {out}"
+    heldout_note = ""
+    radius = None
+    if scene.world is not None and getattr(args, "heldout", 0):
+        # the true views `train` holds out, so that the folder trains and evaluates without Open3D
+        from .scenes.rendered import RecordingWorld, save_heldout
+        from .splat.labels import make_heldout_views
+        from .splat.trainer import TrainConfig
+
+        cfg = TrainConfig()
+        radius = scene.world.free_space_radius()
+        for res in args.heldout_res:
+            rec = RecordingWorld(scene.world)
+            make_heldout_views(dataclasses.replace(scene, world=rec), args.heldout, res, cfg.fov_deg, cfg.seed)
+            save_heldout(out, rec.cameras, rec.renders)
+        heldout_note = f", {args.heldout} held-out views at {'/'.join(map(str, args.heldout_res))} px"
+    write_json(out / "scene.json", {"name": scene.name, "kind": scene.kind, "description": scene.description,
+                                    "distance_kind": scene.distance_kind, "meta": scene.meta,
+                                    "free_space_radius": radius})
+    print(f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s{heldout_note} -> {out}"
           + ("" if scene.distance is not None else " (no depth: distance.npy not written)"))
     return 0
 
@@ -133,7 +153,12 @@ def _initial_cloud(args, scene, cloud_path, report_path):
     from .io import save_npy, write_json
     from .sources import run_source
 
-    pc, report = run_source(scene, args.source, args.teacher, args.views, view_size=getattr(args, "view_size", None))
+    from .device import resolve_device
+    from .pipeline.stages import fusion_config_for
+
+    fusion = fusion_config_for(resolve_device(getattr(args, "device", "auto")))
+    pc, report = run_source(scene, args.source, args.teacher, args.views, fusion,
+                            view_size=getattr(args, "view_size", None))
     pc.save_ply(cloud_path)
     if getattr(args, "distance_out", None):
         if pc.meta.get("erp_distance") is None:
@@ -154,9 +179,11 @@ def _initial_cloud(args, scene, cloud_path, report_path):
 
 
 def cmd_points(args) -> int:
+    from .device import resolve_device
     from .scenes import scene_from_args
     from .sources import get_source
 
+    resolve_device(args.device)  # --device cuda without CUDA: refused before any work
     get_source(args.source)  # an unknown source fails before the scene is rendered
     _initial_cloud(args, scene_from_args(args), args.out, args.report)
     return 0
@@ -165,23 +192,44 @@ def cmd_points(args) -> int:
 def cmd_train(args) -> int:
     import dataclasses
 
+    from .device import resolve_device
     from .pipeline import teacher_depth_fn
     from .scenes import scene_from_args
     from .splat.trainer import TrainConfig, train
 
+    device = resolve_device(getattr(args, "device", "auto"))
+    _check_backend(args, device)
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
     scene = scene_from_args(args)
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
     m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress,
-              inputs={"source": args.source, "teacher": args.teacher, "views": args.views, "depth": args.depth})
+              inputs={"source": args.source, "teacher": args.teacher, "views": args.views, "depth": args.depth},
+              device=device)
     held = m["held-out"]
     held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
           f"{m['pseudo-label']['ssim']:.3f}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
-          f"{m['seconds']['total']:.1f} s; peak {m['peak_rss_mb']:.0f} MB -> {args.out}")
+          f"{m['seconds']['total']:.1f} s ({m['seconds']['train']:.1f} s training); peak {m['peak_rss_mb']:.0f} MB; "
+          f"{m['backend']} on {m['device_name']} -> {args.out}")
     return 0
+
+
+def _check_backend(args, device) -> None:
+    """A backend that cannot render on ``device`` is bad input: one line, before any work."""
+    from .splat.rasterize import cpu_backend, gsplat_backend
+
+    backend = getattr(args, "backend", None) or "auto"
+    if backend == "gsplat" and device.type != "cuda":
+        raise PanoreconInputError(f"--backend gsplat renders on CUDA, but the device is {device}: use --device cuda")
+    if backend == "gsplat" and not gsplat_backend.available():
+        raise PanoreconInputError(f"--backend gsplat: {gsplat_backend.unavailable_reason()}")
+    if backend == "cpu" and device.type != "cpu":
+        raise PanoreconInputError(f"--backend cpu renders on the CPU, but the device is {device}: use --backend "
+                                  "gsplat or torch, or --device cpu")
+    if backend == "cpu" and not cpu_backend.available():
+        raise PanoreconInputError("--backend cpu: the C++ rasterizer could not be built here (see the log)")
 
 
 # ---------------------------------------------------------------- evaluation
@@ -190,10 +238,13 @@ def cmd_ablate(args) -> int:
     from .evaluation.report import average_table
     from .evaluation.suite import load_suite
 
+    from .device import resolve_device
+
+    resolve_device(args.device)
     suite = load_suite(args.suite)
     print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
     frame = run_suite(suite, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
-                      cache_dir=args.cache, progress=not args.no_progress)
+                      cache_dir=args.cache, progress=not args.no_progress, device=args.device)
     cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
     print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
     if "warning" in frame:
@@ -206,7 +257,8 @@ def cmd_ablate(args) -> int:
 def cmd_bench(args) -> int:
     from .evaluation.bench import run_bench
 
-    return run_bench(args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline)
+    return run_bench(args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline,
+                     device=args.device)
 
 
 # ---------------------------------------------------------------- parser
@@ -216,6 +268,11 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _add_device(p) -> None:
+    p.add_argument("--device", default="auto",
+                   help="auto (CUDA when present), cpu or cuda[:K]: where fusion's CG and training run")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -233,6 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
     r.add_argument("--out", required=True, type=T.out_dir, help="output folder")
     r.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width in pixels (height = width / 2)")
+    r.add_argument("--heldout", type=T.int_in(0, 1000, "held-out view count"), default=8,
+                   help="synthetic scenes: true held-out views to record (as `train --heldout`; 0: none)")
+    r.add_argument("--heldout-res", type=T.LABEL_RES, nargs="+", default=[128],
+                   help="sizes of the recorded held-out views (each a `train --res`)")
     r.set_defaults(fn=cmd_render)
 
     g = sub.add_parser("gt-cloud", help="the ground-truth coloured point cloud from the true distance")
@@ -267,6 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("--report", default=None, type=T.out_file, help="output report .json")
     pt.add_argument("--distance-out", default=None, type=T.out_file,
                     help="also write the fused ERP ray distance (.npy, float32 metres)")
+    _add_device(pt)
     pt.set_defaults(fn=cmd_points)
 
     tr = sub.add_parser("train", help="fit Gaussians from a point source to the scene's pseudo-labels")
@@ -280,8 +342,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--labels", type=T.LABELS, default=None, help="pseudo-label views (default 240)")
     tr.add_argument("--checkpoint-every", type=T.ITERS, default=None,
                     help="steps between checkpoints (OUT/ckpt.pt; default 500)")
-    tr.add_argument("--backend", choices=["auto", "torch", "cpu"], default=None,
-                    help="rasterizer (training runs on CPU tensors; gsplat serves CUDA tensors through rasterize())")
+    tr.add_argument("--backend", choices=["auto", "torch", "cpu", "gsplat"], default=None,
+                    help="rasterizer: auto (gsplat on CUDA, cpu on the CPU), torch (the reference), cpu (C++), "
+                         "gsplat (CUDA)")
+    _add_device(tr)
     tr.add_argument("--strategy", choices=["default", "adaptive"], default=None,
                     help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)")
     tr.add_argument("--seed", type=T.SEED, default=None)
@@ -301,6 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
     ab.add_argument("--cache", default=None, type=T.out_dir,
                     help="stage cache folder shared between suites (default OUT/cache)")
     ab.add_argument("--no-progress", action="store_true")
+    _add_device(ab)
     ab.set_defaults(fn=cmd_ablate)
 
     be = sub.add_parser("bench", help="the benchmark CI job: tiny suite + micro-benchmarks against a baseline")
@@ -309,6 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--baseline", default="benchmarks/baseline.json")
     be.add_argument("--out", default=None, type=T.out_file, help="also write the result JSON here")
     be.add_argument("--update-baseline", action="store_true", help="store this run as the baseline")
+    _add_device(be)
     be.set_defaults(fn=cmd_bench)
 
     from .export import add_export_parser

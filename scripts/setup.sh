@@ -2,6 +2,7 @@
 # Install panorecon into ./.venv on a fresh machine.
 #   bash scripts/setup.sh        -> runtime install
 #   bash scripts/setup.sh dev    -> runtime + test dependencies
+#   bash scripts/setup.sh cuda   -> runtime + gsplat, its CUDA kernels compiled now (needs nvcc; dev,cuda for both)
 # torch is installed first and pinned: an unpinned torch would pull a multi-GB CUDA build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,11 +23,13 @@ fi
 PIP=".venv/bin/python -m pip"
 $PIP install -q --upgrade pip
 $PIP install -q "torch==2.13.0"
-if [ "$extras" = "dev" ]; then
-    $PIP install -q -e ".[dev]"
-else
-    $PIP install -q -e .
-fi
+case "$extras" in
+    "") $PIP install -q -e . ;;
+    dev|cuda|dev,cuda|cuda,dev) $PIP install -q -e ".[$extras]" ;;
+    *) echo "panorecon setup: unknown extras '$extras' (expected dev, cuda or dev,cuda)" >&2; exit 2 ;;
+esac
 # build the C++ rasterizer now rather than on first use (it falls back to the torch backend if it cannot)
 .venv/bin/python -m panorecon.splat.rasterize.build
+# gsplat compiles its CUDA kernels on first use: do it now and report how long it took
+case "$extras" in *cuda*) .venv/bin/python -m panorecon.splat.rasterize.build --cuda ;; esac
 echo "panorecon installed in $(pwd)/.venv"

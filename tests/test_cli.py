@@ -91,3 +91,34 @@ def test_train_command(tmp_path, capsys):
     m = json.loads((tmp_path / "t" / "metrics.json").read_text())
     assert m["iterations"] == 20 and "psnr" in m["pseudo-label"] and "psnr" in m["held-out"]
     assert "pseudo-label PSNR" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has CUDA")
+@pytest.mark.parametrize("argv,needle", [
+    (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "cuda"], "--device cuda"),
+    (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--backend", "gsplat"], "--backend gsplat"),
+    (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "gpu"], "--device 'gpu'"),
+    (["points", "bedroom", "--source", "fibonacci", "--out", "X/c.ply", "--device", "cuda"], "--device cuda"),
+    (["ablate", "eval/suites/quick.toml", "--out", "X", "--device", "cuda"], "--device cuda"),
+    (["bench", "--quick", "--device", "cuda", "--out", "X/b.json"], "--device cuda"),
+])
+def test_a_device_or_backend_this_machine_lacks_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys, argv, needle):
+    monkeypatch.chdir(tmp_path)
+    if argv[0] == "ablate":
+        from pathlib import Path
+
+        argv[1] = str(Path(__file__).resolve().parents[1] / argv[1])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "X").exists()
+
+
+def test_resolve_device():
+    import torch
+
+    from panorecon.device import device_record, resolve_device
+
+    assert resolve_device("cpu") == torch.device("cpu")
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert device_record(torch.device("cpu"))["peak_gpu_memory_mb"].startswith("n/a")

@@ -9,6 +9,7 @@ so a stage's peak memory is its worker's peak so far.
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -32,18 +33,27 @@ def _init_worker(threads: int) -> None:
     torch.set_num_threads(threads)
 
 
-def _points_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
+def _points_task(cache_root: str, task: tuple[Row, str, str | None], device: str = "auto") -> dict:
+    from ..device import resolve_device
+
     row, points_key, _ = task
-    return run_points(StageCache(cache_root), row, points_key, provenance={"commit": git_commit()})
+    return run_points(StageCache(cache_root), row, points_key, provenance={"commit": git_commit()},
+                      device=resolve_device(device))
 
 
-def _train_task(cache_root: str, task: tuple[Row, str, str | None]) -> dict:
-    from ..splat.rasterize import cpu_backend
+def _train_task(cache_root: str, task: tuple[Row, str, str | None], device: str = "auto") -> dict:
+    from ..device import resolve_device
+    from ..splat.rasterize import cpu_backend, gsplat_backend
 
-    cpu_backend.load()  # a one-off build (or the wait for another worker's) is install time, not the stage's
+    dev = resolve_device(device)
+    # a one-off build (or the wait for another worker's) is install time, not the stage's
+    if dev.type == "cpu":
+        cpu_backend.load()
+    else:
+        gsplat_backend.available()
     row, points_key, train_key = task
     return run_train(StageCache(cache_root), row, key=train_key, points_key=points_key,
-                     provenance={"commit": git_commit()})
+                     provenance={"commit": git_commit()}, device=dev)
 
 
 def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str,
@@ -82,10 +92,14 @@ def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, 
 
 
 def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", scheduler: str | None = None,
-              cache_dir=None, progress: bool = True) -> pd.DataFrame:
-    """Run (or read from the cache) every row of ``suite``; write DIR/results.csv, results.md and plots."""
+              cache_dir=None, progress: bool = True, device: str = "auto") -> pd.DataFrame:
+    """Run (or read from the cache) every row of ``suite``; write DIR/results.csv, results.md and plots.
+    ``device``: where the stages compute (auto, cpu, cuda); a cached stage keeps the device it ran on."""
+    from ..device import resolve_device
+
     if engine not in ENGINES:
         raise ValueError(f"engine={engine!r}: expected one of {ENGINES}")
+    resolve_device(device)  # refused here, once, before anything is written or any worker starts
     if jobs < 1:
         raise ValueError(f"jobs={jobs}: expected at least 1")
     resolve_names(suite)  # every scene, source and teacher, before the first stage and before --out is made
@@ -96,13 +110,13 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
     # keys fixed once, here: workers use them, so the run stays consistent even if the code changes meanwhile
     tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
     points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
-    points_run = _run_tasks(_points_task, list(points_todo.values()), str(cache.root), jobs, engine, scheduler,
-                            "points", progress)
+    points_run = _run_tasks(functools.partial(_points_task, device=device), list(points_todo.values()),
+                            str(cache.root), jobs, engine, scheduler, "points", progress)
     points_done = {t[1]: cache.done("points", t[1]) for t in tasks}
     train_todo = {t[2]: t for t in tasks if t[2] is not None and "unavailable" not in points_done[t[1]]
                   and cache.done("train", t[2]) is None}
-    train_run = _run_tasks(_train_task, list(train_todo.values()), str(cache.root), jobs, engine, scheduler, "train",
-                           progress)
+    train_run = _run_tasks(functools.partial(_train_task, device=device), list(train_todo.values()),
+                           str(cache.root), jobs, engine, scheduler, "train", progress)
     env = environment()
     frame = pd.DataFrame([result_row(row, points_done[pk], cache.done("train", tk) if tk else None, env,
                                      pk not in points_run, tk is not None and tk not in train_run)
@@ -155,6 +169,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
                 rec[f"lpips_{tag}_note"] = block["lpips"]
             if not block:
                 rec[f"psnr_{tag}_note"] = m.get(proto)
+        rec.update(device=m.get("device", "cpu"), device_name=m.get("device_name", "unrecorded"),
+                   peak_gpu_mb=_num(m.get("peak_gpu_memory_mb")))
         rec.update(gaussians=m["gaussians"], iters=m["iterations"], strategy=m["strategy"],
                    labels=m["config"]["labels"], res=m["config"]["res"],
                    sec_labels=m["seconds"]["labels"], sec_train=m["seconds"]["train"], sec_eval=m["seconds"]["eval"],

@@ -23,20 +23,27 @@ RASTER_MAX_DIFF = {"image": 1e-4, "grad_means": 1e-2}
 SLOWDOWN_RATIO = 1.5
 
 
-def measure(suite_path, quick: bool = True) -> dict:
-    """Run the suite and both micro-benchmarks -> the numbers the baseline stores."""
+def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
+    """Run the suite (its stages on ``device``) and both micro-benchmarks (CPU) -> the numbers the baseline
+    stores."""
     from . import bench_fusion, bench_rasterizer
     from .ablate import run_suite
     from .suite import load_suite
 
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="panorecon-bench-") as tmp:
-        frame = run_suite(load_suite(suite_path), tmp, jobs=1, progress=False)
+        frame = run_suite(load_suite(suite_path), tmp, jobs=1, progress=False, device=device)
     suite_seconds = time.perf_counter() - t
     flag = ["--quick"] if quick else []
     fusion = bench_fusion.main(flag)["results"][0]
     raster = bench_rasterizer.main(flag)
+    trained = frame[frame["device"].notna()] if "device" in frame else frame.iloc[:0]
     out = {"suite": {}, "suite_seconds": suite_seconds,
+           "device": {"device": ",".join(sorted(set(trained["device"]))) or "n/a: no row trains",
+                      "device_name": ",".join(sorted(set(trained["device_name"]))) or "n/a: no row trains",
+                      "peak_gpu_mb": float(trained["peak_gpu_mb"].max()) if len(trained) and
+                      trained["peak_gpu_mb"].notna().any() else "n/a: CPU run",
+                      "train_seconds": float(trained["sec_train"].sum()) if len(trained) else 0.0},
            "fusion": {"abs_rel": fusion["fibonacci-lsq"]["median_abs_rel"],
                       "reference_abs_rel": fusion["moge-reference"]["median_abs_rel"],
                       "speedup_vs_reference": fusion["speedup_vs_reference"]},
@@ -82,12 +89,15 @@ def compare(current: dict, baseline: dict) -> tuple[list[str], list[str]]:
     return fails, warns
 
 
-def run_bench(suite_path, baseline_path, out_path=None, quick: bool = True, update_baseline: bool = False) -> int:
+def run_bench(suite_path, baseline_path, out_path=None, quick: bool = True, update_baseline: bool = False,
+              device: str = "auto") -> int:
     """Measure, compare, print JSON; exit status 1 on a correctness regression."""
+    from ..device import resolve_device
     from .environment import environment
 
+    resolve_device(device)  # a CUDA request without CUDA is refused before anything runs
     baseline_path = Path(baseline_path)
-    current = measure(suite_path, quick)
+    current = measure(suite_path, quick, device)
     if update_baseline:
         write_json(baseline_path, {**current, "measured_with": environment()})
         print(f"baseline written to {baseline_path}")

@@ -14,15 +14,21 @@ from ..io import atomic_write, peak_rss_mb
 
 def environment() -> dict:
     import numpy
-    import open3d
     import scipy
     import torch
 
     from .. import __version__
 
+    try:  # optional where nothing builds a synthetic scene (a GPU machine training rendered folders)
+        import open3d
+
+        open3d_version = open3d.__version__
+    except ImportError:
+        open3d_version = "n/a: not installed"
+
     return {"machine": {"platform": platform.platform(), "processor": platform.machine(), "cpus": os.cpu_count()},
             "versions": {"python": sys.version.split()[0], "numpy": numpy.__version__, "scipy": scipy.__version__,
-                         "torch": torch.__version__, "open3d": open3d.__version__, "panorecon": __version__},
+                         "torch": torch.__version__, "open3d": open3d_version, "panorecon": __version__},
             "commit": git_commit()}
 
 

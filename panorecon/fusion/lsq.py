@@ -22,8 +22,9 @@ aggregated weight and target, so the system is H*W x H*W whatever the number of 
 is sparse SPD (13-point stencil), solved coarse to fine: a direct solve at the coarsest level (assembled
 sparse matrix), then Jacobi-preconditioned conjugate gradients on the matrix-free stencil operator
 (``operators.StencilNormalOperator``: array shifts, no assembly; optionally pyamg smoothed-aggregation AMG on
-the assembled matrix), warm-started from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent),
-its gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
+the assembled matrix; with ``cg_device`` the same Jacobi-PCG runs in torch, on a GPU when asked), warm-started
+from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent), its
+gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
 Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``).
 """
 from __future__ import annotations
@@ -41,8 +42,8 @@ import scipy.sparse.linalg as spla
 from ..geometry import ViewDepth, erp_directions, sample_erp
 from .affine import align_affine_views
 from .connectivity import check_connectivity
-from .operators import (StencilNormalOperator, laplacian_centres, stacked_operator, transpose_apply,
-                        vertical_pairs)
+from .operators import (StencilNormalOperator, TorchStencilOperator, laplacian_centres, stacked_operator,
+                        transpose_apply, vertical_pairs)
 from .warp import ErpObservation, warp_to_erp
 
 
@@ -65,6 +66,7 @@ class FusionConfig:
     border_anchor: float = 1e-3  # data weight of a border pixel, relative to w_data
     border_smooth: float = 0.1  # membrane weight (gradient = 0) where a border pixel is filled, relative to w_grad
     border_laplacian: float = 1.0  # Laplacian = 0 weight where a border pixel is filled, relative to w_lap
+    cg_device: str | None = None  # None: SciPy's CG; "cpu" / "cuda": the same Jacobi-PCG in torch float64 there
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
@@ -80,6 +82,9 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.border_anchor={self.border_anchor!r}: expected > 0 when border_px > 0")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
+        if self.cg_device is not None and self.preconditioner != "jacobi":
+            raise ValueError(f"FusionConfig.cg_device={self.cg_device!r}: the torch CG has the Jacobi preconditioner "
+                             f"only (preconditioner={self.preconditioner!r})")
         if not (self.tol > 0 and self.maxiter >= 1):
             raise ValueError(f"FusionConfig tol={self.tol}, maxiter={self.maxiter}: expected tol > 0, maxiter >= 1")
 
@@ -325,6 +330,38 @@ def _solve(A, b, x0, tol: float, maxiter: int, M):
     return x, its[0], float(np.linalg.norm(A @ x - b) / bn)
 
 
+def _solve_torch(A: StencilNormalOperator, b, x0, tol: float, maxiter: int, device):
+    """``_solve``'s Jacobi-PCG in torch float64 on ``device`` (same stopping rule as SciPy: ||r|| <= tol ||b||,
+    at most ``maxiter`` iterations) -> (x as NumPy, iterations, relative residual)."""
+    import torch
+
+    op = TorchStencilOperator(A, device)
+    t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float64, device=device)  # noqa: E731
+    b_t, x = t(b), t(x0).clone()
+    inv_diag = 1.0 / t(A.diagonal())
+    bn = float(torch.linalg.vector_norm(b_t)) or 1.0
+    r = b_t - op @ x
+    its = 0
+    if float(torch.linalg.vector_norm(r)) > tol * bn:
+        z = inv_diag * r
+        p = z.clone()
+        rz = torch.dot(r, z)
+        while its < maxiter:
+            Ap = op @ p
+            alpha = rz / torch.dot(p, Ap)
+            x += alpha * p
+            r -= alpha * Ap
+            its += 1
+            if float(torch.linalg.vector_norm(r)) <= tol * bn:  # one scalar read per iteration
+                break
+            z = inv_diag * r
+            rz_new = torch.dot(r, z)
+            p = z + (rz_new / rz) * p
+            rz = rz_new
+    resid = float(torch.linalg.vector_norm(b_t - op @ x)) / bn
+    return x.cpu().numpy(), its, resid
+
+
 def _upsample(x: np.ndarray, seen: np.ndarray, h: int, H: int) -> np.ndarray:
     """Bilinear resampling of a coarse ERP solution onto a finer ERP grid, continuous across seam and poles."""
     grid = x.reshape(h, 2 * h).copy()
@@ -350,7 +387,8 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         dists, view_shift, affine_report = align_affine_views(views)
     else:
         dists, view_shift, affine_report = [v.to_distance() for v in views], np.zeros(len(views)), None
-    report = {"solver": f"pcg+{cfg.preconditioner}, coarse-to-fine", "levels": [], "affine_alignment": affine_report,
+    solver = f"pcg+{cfg.preconditioner}" + ("" if cfg.cg_device is None else f" (torch, {cfg.cg_device})")
+    report = {"solver": f"{solver}, coarse-to-fine", "levels": [], "affine_alignment": affine_report,
               "connectivity": check_connectivity(views)}
     x = None
     s = None
@@ -369,11 +407,14 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         else:
             x = _upsample(x, prev_seen, prev_h, h)
         its_total, resid = 0, float("nan")
-        M = None if direct else _preconditioner(A, cfg)
+        torch_cg = cfg.cg_device is not None and not direct
+        M = None if direct or torch_cg else _preconditioner(A, cfg)
         finest = h == height
         tol = cfg.tol if finest else max(cfg.tol, cfg.coarse_tol)
         for _ in range(max(1, cfg.scale_iters) if (h <= cfg.scale_max_height or li == 0) else 1):
-            x, its, resid = _solve(A, b0 + _data_rhs(level, data_w, s), x, tol, cfg.maxiter, M)
+            rhs = b0 + _data_rhs(level, data_w, s)
+            x, its, resid = (_solve_torch(A, rhs, x, tol, cfg.maxiter, cfg.cg_device) if torch_cg
+                             else _solve(A, rhs, x, tol, cfg.maxiter, M))
             its_total += its
             if h > cfg.scale_max_height and li > 0:
                 break

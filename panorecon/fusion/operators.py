@@ -125,3 +125,34 @@ def transpose_apply(height: int, width: int, tx, ty, tl) -> np.ndarray:
     out[:-2] += tl
     out[2:] += tl
     return out
+
+
+class TorchStencilOperator:
+    """``StencilNormalOperator`` in torch (float64) on any device: the same array shifts, for the torch CG."""
+
+    def __init__(self, op: StencilNormalOperator, device):
+        import torch
+
+        self.height, self.width = op.height, op.width
+        t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float64, device=device)  # noqa: E731
+        self.wx, self.wy, self.wl, self.d = t(op.wx), t(op.wy), t(op.wl), t(op.d)
+
+    def __matmul__(self, x):
+        """A x for x [H*W] float64 -> [H*W]."""
+        import torch
+
+        X = x.reshape(self.height, self.width)
+        right = torch.roll(X, -1, dims=1)
+        tx = self.wx * (right - X)
+        ty = self.wy * (X[1:] - X[:-1])
+        tl = self.wl * (right[1:-1] + torch.roll(X, 1, dims=1)[1:-1] + X[:-2] + X[2:] - 4 * X[1:-1])
+        # the transpose of [Dx; Dy; Lap] applied to (tx, ty, tl), as ``transpose_apply``
+        out = torch.roll(tx, 1, dims=1) - tx
+        out = out + torch.nn.functional.pad(ty, (0, 0, 1, 0)) - torch.nn.functional.pad(ty, (0, 0, 0, 1))
+        if len(tl):
+            lap_t = torch.zeros_like(X)
+            lap_t[1:-1] += -4 * tl + torch.roll(tl, 1, dims=1) + torch.roll(tl, -1, dims=1)
+            lap_t[:-2] += tl
+            lap_t[2:] += tl
+            out = out + lap_t
+        return (out + self.d * X).reshape(-1)

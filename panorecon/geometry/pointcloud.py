@@ -1,4 +1,5 @@
-"""The one point-cloud type every point source returns, with PLY I/O through Open3D's tensor API."""
+"""The one point-cloud type every point source returns, with PLY I/O in NumPy (binary little-endian vertex
+PLYs, the layout Open3D writes; any other PLY is read through Open3D, imported only then)."""
 from __future__ import annotations
 
 import os
@@ -63,55 +64,110 @@ class PointCloud:
         return pc
 
     def save_ply(self, path: str | os.PathLike) -> None:
-        """Write a binary PLY (x,y,z, red,green,blue as float, nx,ny,nz, view_id) atomically."""
-        import open3d as o3d
-
+        """Write a binary little-endian PLY (x,y,z, nx,ny,nz, red,green,blue as float, view_id int) atomically."""
+        cols = [("x", self.xyz[:, 0]), ("y", self.xyz[:, 1]), ("z", self.xyz[:, 2])]
+        if self.normals is not None:
+            cols += [(n, self.normals[:, k]) for k, n in enumerate(("nx", "ny", "nz"))]
+        cols += [(n, self.rgb[:, k]) for k, n in enumerate(("red", "green", "blue"))]
+        if self.view_id is not None:
+            cols.append(("view_id", self.view_id))
+        data = np.empty(len(self), dtype=[(n, "<i4" if n == "view_id" else "<f4") for n, _ in cols])
+        for n, v in cols:
+            data[n] = v
+        header = ("ply\nformat binary_little_endian 1.0\ncomment panorecon\n" f"element vertex {len(self)}\n"
+                  + "".join(f"property {'int' if n == 'view_id' else 'float'} {n}\n" for n, _ in cols)
+                  + "end_header\n")
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        pc = o3d.t.geometry.PointCloud()
-        pc.point.positions = o3d.core.Tensor(self.xyz)
-        pc.point.colors = o3d.core.Tensor(self.rgb)
-        if self.normals is not None:
-            pc.point.normals = o3d.core.Tensor(self.normals)
-        if self.view_id is not None:
-            pc.point.view_id = o3d.core.Tensor(self.view_id.reshape(-1, 1))
-        from ..io import atomic_write
-
-        with atomic_write(path, suffix=".ply") as tmp:
-            if not o3d.t.io.write_point_cloud(str(tmp), pc, write_ascii=False):
-                raise OSError(f"could not write point cloud to {path}")
+        tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")  # geometry sits below io/
+        try:
+            with open(tmp, "wb") as f:
+                f.write(header.encode("ascii"))
+                f.write(data.tobytes())
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
 
     @classmethod
     def load_ply(cls, path: str | os.PathLike) -> "PointCloud":
-        """Read a PLY written by ``save_ply`` or any PLY with positions (colours optional), checked: the header,
-        the file size against the header's vertex count (binary files), the count Open3D read, and finite
-        positions. A bad file raises ``PanoreconInputError`` naming it."""
-        import open3d as o3d
-
-        from ..io import PanoreconInputError, quiet_native_stderr
+        """Read a PLY written by ``save_ply`` or any PLY with positions (colours optional; uint8 ones are / 255),
+        checked: the header, the file size against the header's vertex count (binary files), the count read,
+        and finite positions. A bad file raises ``PanoreconInputError`` naming it."""
+        from ..io import PanoreconInputError
 
         path = Path(path)
         if not path.is_file():
             raise PanoreconInputError(f"point cloud {path}: no such file")
         n = check_ply_header(path)
-        with quiet_native_stderr():  # Open3D prints "Read PLY failed" itself; the checks below say why
-            pc = o3d.t.io.read_point_cloud(str(path))
-        if "positions" not in pc.point or len(pc.point.positions) != n:
-            got = len(pc.point.positions) if "positions" in pc.point else 0
+        raw = path.read_bytes()
+        fields = _binary_vertex_fields(raw)
+        if fields is None:
+            fields = _open3d_fields(path)
+        got = len(fields["x"]) if {"x", "y", "z"} <= set(fields) else 0
+        if got != n:
             raise PanoreconInputError(f"point cloud {path}: read {got} of the {n} vertices its header announces "
-                                      "(cut-off or corrupt file)")
-        xyz = pc.point.positions.numpy()
+                                      "(cut-off or corrupt file; expected a PLY with x, y, z)")
+        xyz = np.stack([fields.pop(k) for k in ("x", "y", "z")], 1)
         if not np.isfinite(xyz).all():
             raise PanoreconInputError(f"point cloud {path}: {int((~np.isfinite(xyz).all(1)).sum())} vertices have "
                                       "NaN or Inf positions")
-        rgb = pc.point.colors.numpy() if "colors" in pc.point else np.full_like(xyz, 0.5)
-        if rgb.dtype == np.uint8:
-            rgb = rgb / 255.0
-        normals = pc.point.normals.numpy() if "normals" in pc.point else None
-        view_id = pc.point.view_id.numpy().reshape(-1) if "view_id" in pc.point else None
-        extra = {k: pc.point[k].numpy().reshape(len(xyz), -1) for k in pc.point
-                 if k not in ("positions", "colors", "normals", "view_id")}
+        rgb = np.full_like(xyz, 0.5, dtype=np.float32)
+        if {"red", "green", "blue"} <= set(fields):
+            rgb = np.stack([fields.pop(k) for k in ("red", "green", "blue")], 1)
+            rgb = rgb / 255.0 if rgb.dtype == np.uint8 else rgb
+        normals = np.stack([fields.pop(k) for k in ("nx", "ny", "nz")], 1) if "nx" in fields else None
+        view_id = fields.pop("view_id", None)
+        extra = {k: np.asarray(v).reshape(len(xyz), -1) for k, v in fields.items()}
         return cls(xyz, rgb, normals, view_id, {"scalars": extra} if extra else {})
+
+
+_PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8", "uchar": "u1", "uint8": "u1",
+              "char": "i1", "int8": "i1", "ushort": "<u2", "uint16": "<u2", "short": "<i2", "int16": "<i2",
+              "uint": "<u4", "uint32": "<u4", "int": "<i4", "int32": "<i4"}
+
+
+def _binary_vertex_fields(raw: bytes) -> dict | None:
+    """name -> [N] array of a binary little-endian PLY whose only element is ``vertex`` with scalar
+    properties; None for any other PLY (ASCII, big-endian, faces, lists)."""
+    end = raw.find(b"end_header\n")
+    if not raw.startswith(b"ply\n") or end < 0:
+        return None
+    lines = [ln.split() for ln in raw[:end].decode("ascii", "replace").splitlines()[1:]]
+    lines = [ln for ln in lines if ln and ln[0] not in ("comment", "obj_info")]
+    if not lines or lines[0] != ["format", "binary_little_endian", "1.0"]:
+        return None
+    elements = [ln for ln in lines if ln[0] == "element"]
+    props = [ln for ln in lines if ln[0] == "property"]
+    if len(elements) != 1 or elements[0][1] != "vertex" or any(len(p) != 3 or p[1] not in _PLY_TYPES for p in props):
+        return None
+    n = int(elements[0][2])
+    dtype = np.dtype([(p[2], _PLY_TYPES[p[1]]) for p in props])
+    body = raw[end + len(b"end_header\n"):]
+    if len(body) < n * dtype.itemsize:
+        return None  # cut off: the caller's header check names the file
+    data = np.frombuffer(body, dtype=dtype, count=n)
+    return {name: np.array(data[name]) for name in dtype.names}
+
+
+def _open3d_fields(path: Path) -> dict:
+    """name -> [N] (or [N, k]) arrays of any PLY Open3D reads (Open3D imported here only)."""
+    import open3d as o3d
+
+    from ..io import quiet_native_stderr
+
+    with quiet_native_stderr():  # Open3D prints "Read PLY failed" itself; load_ply's checks say why
+        pc = o3d.t.io.read_point_cloud(str(path))
+    if "positions" not in pc.point:
+        return {}
+    out = {}
+    for key in pc.point:
+        v = pc.point[key].numpy()
+        names = {"positions": ("x", "y", "z"), "colors": ("red", "green", "blue"), "normals": ("nx", "ny", "nz")}
+        if key in names:
+            out.update({n: v[:, k] for k, n in enumerate(names[key])})
+        else:
+            out[key] = v.reshape(len(v), -1)[:, 0] if v.ndim > 1 and v.shape[1] == 1 else v
+    return out
 
 
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,

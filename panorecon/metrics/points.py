@@ -1,4 +1,4 @@
-"""Point-cloud metrics against a true cloud, with Open3D KD-trees.
+"""Point-cloud metrics against a true cloud, with SciPy KD-trees (exact nearest neighbours).
 
 accuracy: mean distance from each predicted point to its nearest true point (metres);
 completeness: mean distance from each true point to its nearest predicted point;
@@ -13,12 +13,10 @@ import numpy as np
 
 def nearest_distances(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Distance from every point of src [N, 3] to its nearest point of dst [M, 3] (metres), [N] float64."""
-    import open3d as o3d
+    from scipy.spatial import cKDTree
 
-    nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(np.ascontiguousarray(dst, dtype=np.float64)))
-    nns.knn_index()
-    _, d2 = nns.knn_search(o3d.core.Tensor(np.ascontiguousarray(src, dtype=np.float64)), 1)
-    return np.sqrt(d2.numpy()[:, 0])
+    d, _ = cKDTree(np.asarray(dst, np.float64)).query(np.asarray(src, np.float64), k=1, workers=-1)
+    return d
 
 
 def _subsample(xyz: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

@@ -98,7 +98,18 @@ def teacher_depth_fn(scene, teacher_spec: str | None):
     return depth_fn
 
 
-def run_points(cache: StageCache, row: Row, key: str | None = None, provenance: dict | None = None) -> dict:
+def fusion_config_for(device) -> "FusionConfig | None":
+    """The fusion settings for a run on ``device`` (a torch.device): the torch CG on a GPU, else the defaults
+    (SciPy's CG). The device is not part of any stage key: results agree to the solver's tolerance."""
+    if device is None or device.type != "cuda":
+        return None
+    from ..fusion import FusionConfig
+
+    return FusionConfig(cg_device=str(device))
+
+
+def run_points(cache: StageCache, row: Row, key: str | None = None, provenance: dict | None = None,
+               device=None) -> dict:
     """The point source's record: report, seconds, peak_rss_mb, cached (bool); cloud.ply in its folder.
     ``key``: the stage key as the caller computed it (a run keeps the keys it started with even if the code
     changes meanwhile); default ``row.points_key()``. ``provenance`` (e.g. the commit) is stored in the record
@@ -111,10 +122,10 @@ def run_points(cache: StageCache, row: Row, key: str | None = None, provenance: 
         done = cache.done("points", key)
         if done is not None:
             return {**done, "cached": True}
-        return {**_compute_points(cache, row, key, provenance), "cached": False}
+        return {**_compute_points(cache, row, key, provenance, device), "cached": False}
 
 
-def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | None) -> dict:
+def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | None, device) -> dict:
     from ..io import PanoreconInputError
     from ..sources import run_source
 
@@ -122,7 +133,7 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
     scene = load_row_scene(row.scene, row.width, cache)
     scene_s = time.perf_counter() - t
     try:
-        pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views)
+        pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views, fusion_config_for(device))
     except PanoreconInputError as e:  # a source that cannot run here says why ("n/a: needs a CUDA build ...")
         if not str(e).startswith("n/a"):
             raise
@@ -139,25 +150,25 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
 
 
 def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | None = None,
-              points_key: str | None = None, provenance: dict | None = None) -> dict:
+              points_key: str | None = None, provenance: dict | None = None, device=None) -> dict:
     """The trainer's record: metrics (metrics.json), seconds, peak_rss_mb, cached; resumes an interrupted run.
-    ``provenance`` as in :func:`run_points`."""
+    ``provenance`` as in :func:`run_points`; ``device`` a torch.device (None: 'auto')."""
     key = key or row.train_key()
     done = cache.done("train", key)
     if done is not None:
         return {**done, "cached": True}
-    points = run_points(cache, row, points_key, provenance)
+    points = run_points(cache, row, points_key, provenance, device)
     if "unavailable" in points:  # nothing to train from; the row reads n/a with the source's reason
         return {"stage": "train", "key": key, "unavailable": points["unavailable"], "cached": False}
     with cache.lock("train", key):
         done = cache.done("train", key)
         if done is not None:
             return {**done, "cached": True}
-        return {**_compute_train(cache, row, key, points, progress, provenance), "cached": False}
+        return {**_compute_train(cache, row, key, points, progress, provenance, device), "cached": False}
 
 
 def _compute_train(cache: StageCache, row: Row, key: str, points: dict, progress: bool,
-                   provenance: dict | None) -> dict:
+                   provenance: dict | None, device) -> dict:
     from ..geometry import PointCloud
     from ..splat.trainer import TrainConfig, train
 
@@ -167,7 +178,7 @@ def _compute_train(cache: StageCache, row: Row, key: str, points: dict, progress
     inputs = {"scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,
               "points_key": points["key"]}
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
-                    teacher_depth_fn(scene, row.teacher), progress=progress, inputs=inputs)
+                    teacher_depth_fn(scene, row.teacher), progress=progress, inputs=inputs, device=device or "auto")
     record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
               "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
     return cache.finish("train", key, record, files=("metrics.json", "point_cloud.ply"))

@@ -1,4 +1,6 @@
-"""Scene registry: every scene by name, synthetic and real, plus any ERP image given by path."""
+"""Scene registry: every scene by name, synthetic and real, plus any ERP image given by path and any folder
+written by ``panorecon render`` (``rendered:<dir>`` or the folder's path). Only a synthetic scene's build
+imports Open3D."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -32,9 +34,21 @@ def register_scene(spec: SceneSpec) -> SceneSpec:
     return spec
 
 
+def _build_synthetic(name: str, width: int | None) -> Scene:
+    from .synthetic import build_scene  # Open3D: imported only when a synthetic scene is built
+
+    return build_scene(name, width)
+
+
 def _ensure_builtin() -> None:
-    # importing the modules registers their scenes
-    from . import real, synthetic  # noqa: F401
+    # importing the module registers the real scenes; the synthetic ones come from the Open3D-free catalog
+    from . import real  # noqa: F401
+    from .catalog import SYNTHETIC_SCENES
+
+    for name, description in SYNTHETIC_SCENES.items():
+        if name not in _SCENES:
+            register_scene(SceneSpec(name, "synthetic", True, description,
+                                     lambda width, _n=name: _build_synthetic(_n, width)))
 
 
 def list_scenes() -> list[SceneSpec]:
@@ -59,6 +73,12 @@ def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
     if name in _SCENES:
         scene = _SCENES[name].build(width)
         return scene if depth is None else with_depth(scene, depth)
+    if name.startswith("rendered:") or Path(name).is_dir():
+        from .rendered import load_rendered
+
+        if depth is not None:
+            raise PanoreconInputError(f"--depth {depth.path}: {name!r} is a `panorecon render` folder with its own depth")
+        return load_rendered(Path(name.removeprefix("rendered:")), width)
     if Path(name).suffix.lower() in (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".exr"):
         if Path(name).suffix.lower() == ".exr":
             raise PanoreconInputError(f"{name}: an .exr is read as a depth file (--depth), not as the panorama; "
@@ -66,7 +86,8 @@ def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
         return scene_from_image(Path(name), width, depth=depth)
     raise PanoreconInputError(
         f"unknown scene {name!r}: expected one of {', '.join(sorted(_SCENES))}, a dataset panorama "
-        "(stanford2d3d:, structured3d:, matterport3d:), or the path of an equirectangular image"
+        "(stanford2d3d:, structured3d:, matterport3d:), the path of an equirectangular image, "
+        "or a folder written by `panorecon render`"
     )
 
 

@@ -16,7 +16,7 @@ import open3d as o3d
 from ..geometry import PinholeCamera, erp_directions
 from . import procedural as P
 from .base import ErpRender, Scene, ViewRender
-from .registry import SceneSpec, register_scene
+from .catalog import DEFAULT_WIDTH, SCENE_SEED, SYNTHETIC_SCENES
 
 EYE_HEIGHT = 1.6  # metres above the floor / ground at the panorama centre
 LIGHT = np.array([0.35, -0.25, 0.9]) / np.linalg.norm([0.35, -0.25, 0.9])
@@ -358,18 +358,15 @@ def city_plaza(seed: int) -> SyntheticWorld:
 
 
 # ---------------------------------------------------------------- registry
-DEFAULT_WIDTH = 1024
-SCENE_SEED = 7
-
 _BUILDERS = {
-    "bedroom": (bedroom, "bedroom: bed with pillows and headboard, nightstands and lamp, wardrobe, desk, rug, window (indoor)"),
-    "bathroom": (bathroom, "luxury bathroom: tiled walls, marble tub, vanity with basin and mirror, toilet, plant (indoor)"),
-    "library": (library, "library: wall shelves full of books, free-standing stacks, reading tables and chairs (indoor)"),
-    "exhibition-hall": (exhibition_hall, "indoor exhibition hall: art installations on pedestals, glass display cases, large posters, spotlights"),
-    "mountain": (mountain, "mountain landscape: ridged terrain with rock and snow, sky at infinity (outdoor)"),
-    "grassland": (grassland, "grassland with blue sky: rolling hills, yurts, a fence line, clouds (outdoor)"),
-    "beach": (beach, "waves on the beach: sand dunes, a wavy sea to the horizon, umbrellas and rocks (outdoor)"),
-    "city-plaza": (city_plaza, "outdoor city plaza: central fountain, stone benches, tiled ground, street lamps, buildings, open space"),
+    "bedroom": bedroom,
+    "bathroom": bathroom,
+    "library": library,
+    "exhibition-hall": exhibition_hall,
+    "mountain": mountain,
+    "grassland": grassland,
+    "beach": beach,
+    "city-plaza": city_plaza,
 }
 
 _WORLDS: dict[tuple[str, int], SyntheticWorld] = {}
@@ -379,7 +376,7 @@ def world(name: str, seed: int = SCENE_SEED) -> SyntheticWorld:
     """The (cached) world of a synthetic scene."""
     key = (name, seed)
     if key not in _WORLDS:
-        _WORLDS[key] = _BUILDERS[name][0](seed)
+        _WORLDS[key] = _BUILDERS[name](seed)
     return _WORLDS[key]
 
 
@@ -388,10 +385,6 @@ def build_scene(name: str, width: int | None = None, seed: int = SCENE_SEED) -> 
     w = world(name, seed)
     width = DEFAULT_WIDTH if width is None else width
     erp = w.render_erp(width // 2)
-    return Scene(name=name, kind="synthetic", description=_BUILDERS[name][1], rgb=erp.rgb, distance=erp.distance,
+    return Scene(name=name, kind="synthetic", description=SYNTHETIC_SCENES[name], rgb=erp.rgb, distance=erp.distance,
                  sky=erp.sky, distance_kind="truth", world=w,
                  meta={"seed": seed, "parts": len(w.parts), "outdoor": w.outdoor, "eye_height_m": EYE_HEIGHT})
-
-
-for _name, (_fn, _desc) in _BUILDERS.items():
-    register_scene(SceneSpec(_name, "synthetic", True, _desc, lambda width, _n=_name: build_scene(_n, width)))

@@ -55,7 +55,27 @@ def ssim_reference(a: torch.Tensor, b: torch.Tensor, size: int = 11, sigma: floa
 
 def pearson_depth_loss(rendered: torch.Tensor, teacher: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
     """1 - Pearson correlation between rendered and teacher depth over valid pixels (eq. 10-11): invariant to
-    the teacher's scale and shift. Fewer than 2 valid pixels or a constant map give 0 loss."""
+    the teacher's scale and shift. Fewer than 2 valid pixels or a constant map give 0 loss. Masked sums, no
+    boolean indexing or branch on a value: nothing is read back to the host (``pearson_depth_loss_reference``
+    is the same quantity, written directly)."""
+    ok = torch.isfinite(teacher) & torch.isfinite(rendered)
+    if valid is not None:
+        ok = ok & valid
+    w = ok.to(rendered.dtype)
+    n = w.sum()
+    x0 = torch.where(ok, rendered, torch.zeros_like(rendered))
+    y0 = torch.where(ok, teacher.to(rendered.dtype), torch.zeros_like(rendered))
+    x = (x0 - x0.sum() / n.clamp_min(1)) * w
+    y = (y0 - y0.sum() / n.clamp_min(1)) * w
+    prod = (x * x).sum() * (y * y).sum()
+    use = (n >= 2) & (prod > 1e-24)  # denominator > 1e-12; sqrt taken only where used (finite gradient)
+    corr = (x * y).sum() / torch.sqrt(torch.where(use, prod, torch.ones_like(prod)))
+    return torch.where(use, 1 - corr, x0.sum() * 0)
+
+
+def pearson_depth_loss_reference(rendered: torch.Tensor, teacher: torch.Tensor,
+                                 valid: torch.Tensor | None = None) -> torch.Tensor:
+    """``pearson_depth_loss`` by boolean indexing and host-side branches: the reference the tests compare with."""
     ok = torch.isfinite(teacher) & torch.isfinite(rendered)
     if valid is not None:
         ok = ok & valid

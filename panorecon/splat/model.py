@@ -14,15 +14,16 @@ from .rasterize.sh import C0
 
 
 def nearest_neighbour_scale(xyz: np.ndarray, k: int = 3) -> np.ndarray:
-    """Mean distance (metres) from each point to its k nearest other points, [N] float64 (Open3D KNN)."""
-    import open3d as o3d
+    """Mean distance (metres) from each point to its k nearest other points, [N] float64 (SciPy KD-tree,
+    exact). A single point has no neighbour: 1."""
+    from scipy.spatial import cKDTree
 
-    pts = o3d.core.Tensor(np.ascontiguousarray(xyz, dtype=np.float64))
-    nns = o3d.core.nns.NearestNeighborSearch(pts)
-    nns.knn_index()
-    _, d2 = nns.knn_search(pts, min(k + 1, len(xyz)))
-    d = np.sqrt(d2.numpy()[:, 1:])  # drop the point itself
-    return d.mean(1) if d.shape[1] else np.ones(len(xyz))
+    pts = np.asarray(xyz, np.float64)
+    kk = min(k + 1, len(pts))
+    if kk < 2:
+        return np.ones(len(pts))
+    d, _ = cKDTree(pts).query(pts, k=kk, workers=-1)
+    return d[:, 1:].mean(1)  # drop the point itself (distance 0, or a duplicate's 0: the same value)
 
 
 class GaussianModel(nn.Module):

@@ -74,8 +74,8 @@ class DefaultStrategy:
             return
         n = len(model)
         if self.grad_sum is None or len(self.grad_sum) != n:
-            self.grad_sum, self.count = torch.zeros(n), torch.zeros(n)
-        scaled = g.detach() * torch.tensor([width / 2, height / 2])
+            self.grad_sum, self.count = torch.zeros(n, device=g.device), torch.zeros(n, device=g.device)
+        scaled = g.detach() * torch.tensor([width / 2, height / 2], device=g.device)
         vis = meta["radii"] > 0
         self.grad_sum += (scaled.norm(dim=-1) * vis).sum(0)
         self.count += vis.sum(0)
@@ -105,7 +105,7 @@ class DefaultStrategy:
                 if ns:
                     idx = torch.nonzero(split).flatten().repeat(2)
                     R = quat_to_rotmat(model.quats.detach()[idx])
-                    noise = torch.randn(len(idx), 3) * model.scales().detach()[idx]
+                    noise = torch.randn(len(idx), 3, device=idx.device) * model.scales().detach()[idx]
                     new["means"][-2 * ns:] += (R @ noise[..., None])[..., 0]
                     new["log_scales"][-2 * ns:] -= math.log(1.6)
             low = self.prune_mask(model, it)
@@ -174,8 +174,9 @@ class AdaptiveStrategy(DefaultStrategy):
         super().observe(model, meta, width, height)
         n = len(model)
         if self.top_contrib is None or len(self.top_contrib) != n:
-            self.top_contrib = torch.zeros(n, self.top_k)
-            self.trans_max, self.seen = torch.zeros(n), torch.zeros(n, dtype=torch.bool)
+            dev = model.means.device
+            self.top_contrib = torch.zeros(n, self.top_k, device=dev)
+            self.trans_max, self.seen = torch.zeros(n, device=dev), torch.zeros(n, dtype=torch.bool, device=dev)
         for c in range(meta["weight_sum"].shape[0]):
             both = torch.cat([self.top_contrib, meta["weight_sum"][c, :, None].float()], 1)
             self.top_contrib = both.topk(self.top_k, dim=1).values

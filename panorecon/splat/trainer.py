@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..device import device_record, reset_peak_memory, resolve_device, synchronize
 from ..io import peak_rss_mb, write_image, write_json
 from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import MODEL_KEYS, checkpoint_inputs, load_checkpoint, save_checkpoint
@@ -37,7 +38,7 @@ class TrainConfig:
     labels: int = _f(240, "number of dense pseudo-label views (Table 5: 120-360)")
     fov_deg: float = _f(60.0, "field of view of the label and held-out views (degrees)")
     layout: str = _f("fibonacci", "layout of the pseudo-label directions")
-    backend: str = _f("auto", "rasterizer backend: auto, cpu or torch")
+    backend: str = _f("auto", "rasterizer backend: auto, cpu, torch or gsplat (CUDA)")
     sh_degree: int = _f(3, "largest SH degree; the active degree grows every sh_increase_every steps")
     sh_increase_every: int = _f(1000, "steps between SH degree increases")
     strategy: str = _f("default", "densify/prune strategy: default (3DGS) or adaptive (§2.5 contribution pruning)")
@@ -65,10 +66,17 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float("inf") if mse == 0 else 10 * math.log10(1.0 / mse)
 
 
+def _cameras(views: list[LabelView], device) -> tuple[torch.Tensor, torch.Tensor]:
+    """-> viewmats [V,4,4], Ks [V,3,3] float32 on ``device``."""
+    V = torch.tensor(np.stack([v.camera.viewmat for v in views]), dtype=torch.float32, device=device)
+    K = torch.tensor(np.stack([v.camera.K for v in views]), dtype=torch.float32, device=device)
+    return V, K
+
+
 def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_degree: int, backend: str,
-            return_contrib: bool = False):
-    V = torch.tensor(np.stack([v.camera.viewmat for v in views]), dtype=torch.float32)
-    K = torch.tensor(np.stack([v.camera.K for v in views]), dtype=torch.float32)
+            return_contrib: bool = False, cameras=None):
+    """Render ``views`` (their cameras given as ``cameras`` = (viewmats, Ks) when already on the device)."""
+    V, K = cameras if cameras is not None else _cameras(views, model.means.device)
     return rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K, cfg.res, cfg.res,
                      sh_degree=sh_degree, backend=backend, return_contrib=return_contrib)
 
@@ -80,7 +88,7 @@ def _evaluate(model, views, cfg, backend) -> dict:
     ps, ss, lp = [], [], []
     with torch.no_grad():
         for v in views:
-            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
+            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).cpu()
             t = torch.from_numpy(v.rgb)
             ps.append(psnr(img, t))
             ss.append(float(ssim(img, t)))
@@ -98,10 +106,12 @@ def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
 
 
 def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True,
-          inputs: dict | None = None) -> dict:
+          inputs: dict | None = None, device: str | torch.device = "auto") -> dict:
     """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
-    (3DGS layout), renders/, metrics.json and ckpt.pt, resumed when present and written for the same scene,
-    width, config, cloud and ``inputs`` (e.g. source and teacher names; see ``checkpoint.py``)."""
+    (3DGS layout), renders/, metrics.json and ckpt.pt, resumed (on any device) when present and written for the
+    same scene, width, config, cloud and ``inputs`` (e.g. source and teacher names; see ``checkpoint.py``).
+    The model, labels, losses, optimizer and strategy live on ``device`` ('auto': CUDA when present); the step
+    loop reads nothing back to the host except every ``history_every`` steps."""
     from tqdm import tqdm
 
     cfg = config
@@ -111,13 +121,15 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     seconds = {}
-    backend = resolve_backend(cfg.backend)  # on first use this loads (or builds) the C++ backend
+    dev = resolve_device(device)
+    reset_peak_memory(dev)
+    backend = resolve_backend(cfg.backend, dev.type == "cuda")  # on first use this loads (or builds) the C++ backend
     seconds["backend"] = time.perf_counter() - t0
     t = time.perf_counter()
     labels = make_pseudo_labels(scene, cfg.labels, cfg.res, cfg.fov_deg, cfg.layout, depth_fn)
     heldout = make_heldout_views(scene, cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed) if scene.world is not None and cfg.heldout else []
     seconds["labels"] = time.perf_counter() - t
-    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree)
+    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree).to(dev)
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [("means", cfg.lr_means * extent), ("quats", cfg.lr_quats), ("log_scales", cfg.lr_scales),
               ("logit_opacities", cfg.lr_opacities), ("sh0", cfg.lr_sh0), ("shN", cfg.lr_shN)]
@@ -127,15 +139,23 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     ckpt = out / "ckpt.pt"
     keys = checkpoint_inputs(scene, point_cloud, cfg.digest(), inputs)
     state = load_checkpoint(ckpt, keys, cfg.iters)
-    torch.manual_seed(cfg.seed)  # split sampling; a resumed run continues the stored generator state
+    torch.manual_seed(cfg.seed)  # split sampling; a resumed run continues the stored generator states
     if state is not None:
-        model = GaussianModel(*[state["model"][n] for n in MODEL_KEYS])
+        model = GaussianModel(*[state["model"][n] for n in MODEL_KEYS]).to(dev)
         opt = _adam(model, groups)
         opt.load_state_dict(state["optimizer"])
         start, history = state["iteration"], state["history"]
         strategy.load_state_dict(state["strategy"])
         torch.set_rng_state(state["rng"])
+        if dev.type == "cuda" and "cuda_rng" in state:
+            torch.cuda.set_rng_state(state["cuda_rng"], dev)
         log.info("resuming %s at step %d of %d", ckpt, start, cfg.iters)
+    # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
+    targets = torch.from_numpy(np.stack([v.rgb for v in labels])).to(dev)
+    teachers = None if labels[0].depth is None else torch.from_numpy(np.stack([v.depth for v in labels])).to(dev)
+    viewmats, Ks = _cameras(labels, dev)
+    first_bad = torch.full((), -1, dtype=torch.long, device=dev)  # first iteration with a non-finite loss
+    synchronize(dev)
     t = time.perf_counter()
     gen = np.random.default_rng(cfg.seed)
     order = gen.integers(0, len(labels), size=cfg.iters)
@@ -143,29 +163,39 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     for it in bar:
         lr = cfg.lr_means * extent * (cfg.lr_means_final / cfg.lr_means) ** (it / max(cfg.iters - 1, 1))
         opt.param_groups[0]["lr"] = lr
-        v = labels[order[it]]
+        k = int(order[it])
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every)
-        img, alpha, depth, meta = _render(model, [v], cfg, deg, backend, strategy.needs_contrib)
+        img, alpha, depth, meta = _render(model, [labels[k]], cfg, deg, backend, strategy.needs_contrib,
+                                          (viewmats[k:k + 1], Ks[k:k + 1]))
         meta["means2d"].retain_grad()
-        target = torch.from_numpy(v.rgb)[None]
-        teacher = None if v.depth is None else torch.from_numpy(v.depth)
+        target = targets[k:k + 1]
+        teacher = None if teachers is None else teachers[k]
         expected_z = (depth / alpha.clamp_min(1e-6))[0, ..., 0]
         loss = total_loss(img, target, expected_z, teacher, alpha[0, ..., 0].detach() > 0.5,
                           cfg.w_l1, cfg.w_ssim, cfg.w_depth if teacher is not None else 0.0)
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"non-finite loss at iteration {it}: check the point cloud and learning rates")
+        # recorded on the device and checked where the loop syncs anyway (history, checkpoints, the end)
+        first_bad = torch.where((first_bad < 0) & ~torch.isfinite(loss.detach()), it, first_bad)
         loss.backward()
         strategy.observe(model, meta, cfg.res, cfg.res)
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
+        sync_now = ((cfg.history_every and (it + 1) % cfg.history_every == 0) or it + 1 == cfg.iters
+                    or (cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0))
+        if sync_now and int(first_bad) >= 0:
+            raise FloatingPointError(f"non-finite loss at iteration {int(first_bad)}: check the point cloud and "
+                                     "learning rates")
         if cfg.history_every and (it + 1) % cfg.history_every == 0:
             history.append({"iteration": it + 1, "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
             bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
         if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
+            rng = {"rng": torch.get_rng_state()}
+            if dev.type == "cuda":
+                rng["cuda_rng"] = torch.cuda.get_rng_state(dev)
             save_checkpoint(ckpt, keys, {"iteration": it + 1, "history": history, "optimizer": opt.state_dict(),
-                                         "strategy": strategy.state_dict(), "rng": torch.get_rng_state(),
+                                         "strategy": strategy.state_dict(), **rng,
                                          "model": {n: p.detach() for n, p in model.named_parameters()}})
+    synchronize(dev)
     seconds["train"] = time.perf_counter() - t
     t = time.perf_counter()
     metrics = {"pseudo-label": _evaluate(model, labels, cfg, backend),
@@ -175,11 +205,11 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     with torch.no_grad():
         for name, views in (("label", labels[:3]), ("heldout", heldout[:3])):
             for k, v in enumerate(views):
-                img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).numpy()
+                img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).cpu().numpy()
                 write_image(out / "renders" / f"{name}_{k}.png", (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8))
     seconds["total"] = time.perf_counter() - t0
     metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), backend=backend, strategy=cfg.strategy,
-                   peak_rss_mb=peak_rss_mb(), history=history,
+                   peak_rss_mb=peak_rss_mb(), **device_record(dev), history=history,
                    config=dataclasses.asdict(cfg))
     write_json(out / "metrics.json", metrics)
     ckpt.unlink(missing_ok=True)

@@ -42,9 +42,11 @@ class Teacher(Protocol):
 
 def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
     """(ray distance [h, w] float32 with inf for sky, sky [h, w] bool) of a view at the panorama centre, from
-    the scene's world when it has one, else sampled (nearest) from its true ERP distance."""
-    if scene.world is not None:
-        r = scene.world.render_view(camera)
+    the scene's world when it has one and can render it, else sampled (nearest) from its true ERP distance (a
+    scene loaded from a ``panorecon render`` folder records only its held-out views)."""
+    world = scene.world
+    if world is not None and getattr(world, "can_render", lambda cam: True)(camera):
+        r = world.render_view(camera)
         return r.distance, r.sky
     if scene.distance is None or scene.distance_kind != "truth":
         raise PanoreconInputError(f"scene {scene.name!r} has no true depth (its depth is {scene.distance_kind!r}); "

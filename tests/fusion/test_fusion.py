@@ -256,3 +256,35 @@ def test_stacked_operator_matches_its_parts():
                      laplacian_matrix(H, W), sp.identity(H * W)])
     assert abs(B - ref).max() == 0
     np.testing.assert_array_equal(rows, np.repeat(np.arange(B.shape[0]), np.diff(B.indptr)))
+
+
+def _torch_vs_scipy(fib20, device):
+    views = make_views(fib20, 64, np.random.default_rng(15), noise=0.02)
+    ref = fuse_views(views, 128, 256, FusionConfig(levels=2))
+    got = fuse_views(views, 128, 256, FusionConfig(levels=2, cg_device=device))
+    assert not ref.report["levels"][1]["direct"] and ref.report["levels"][1]["iterations"] > 5
+    assert "torch" in got.report["solver"]
+    for a, b in zip(ref.report["levels"], got.report["levels"]):
+        assert abs(a["iterations"] - b["iterations"]) <= 1
+        assert b["residual"] <= 1.01 * a["residual"] + 1e-12
+    np.testing.assert_allclose(got.distance, ref.distance, rtol=1e-5)
+    np.testing.assert_allclose(got.view_scale, ref.view_scale, rtol=1e-5)
+
+
+def test_torch_cg_equals_the_scipy_cg(fib20):
+    """The Jacobi-PCG in torch float64 (on the CPU here) against SciPy's: same iterations, same solution."""
+    _torch_vs_scipy(fib20, "cpu")
+
+
+@pytest.mark.cuda
+def test_torch_cg_on_cuda_equals_the_scipy_cg(fib20):
+    import torch
+
+    if not torch.cuda.is_available():
+        pytest.skip("needs CUDA")
+    _torch_vs_scipy(fib20, "cuda")
+
+
+def test_torch_cg_refuses_amg():
+    with pytest.raises(ValueError, match="Jacobi"):
+        FusionConfig(cg_device="cpu", preconditioner="amg").check()

@@ -50,3 +50,18 @@ def test_the_seam_couples_first_and_last_columns():
     x[0] = 1.0  # row 0, column 0: its left neighbour is column W-1
     y = (op @ x).reshape(H, W)
     assert y[0, W - 1] == pytest.approx(-1.0) and y[0, 1] == pytest.approx(-1.0) and y[0, 0] == pytest.approx(2.0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(2, 9), st.integers(3, 12), st.integers(0, 10_000), st.sampled_from([1.0, 6.0]))
+def test_torch_operator_equals_the_numpy_one(H, W, seed, spread):
+    """The torch CG's operator (float64, CPU here; the same code runs on CUDA) against the NumPy one."""
+    import torch
+
+    from panorecon.fusion.operators import TorchStencilOperator
+
+    rng = np.random.default_rng(seed)
+    op = StencilNormalOperator(H, W, *random_weights(H, W, rng, spread))
+    x = rng.normal(size=H * W)
+    got = (TorchStencilOperator(op, "cpu") @ torch.from_numpy(x)).numpy()
+    np.testing.assert_allclose(got, op @ x, rtol=1e-12, atol=1e-12 * np.abs(op @ x).max())

@@ -1,6 +1,8 @@
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from panorecon.geometry import PointCloud, intrinsics_from_fov, look_at_viewmat
 from panorecon.io import PanoreconInputError
@@ -134,3 +136,41 @@ def test_training_the_model_never_touches_the_point_cloud():
     with torch.no_grad():
         m.means += 1.0
     np.testing.assert_array_equal(pc.xyz, before)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), invalid=st.floats(0.0, 1.0), constant=st.booleans(), few=st.booleans())
+def test_sync_free_pearson_equals_the_reference_values_and_gradients(seed, invalid, constant, few):
+    """Masked sums against boolean indexing: random masks, NaN/inf teachers, a constant map, < 2 valid pixels."""
+    from panorecon.splat.losses import pearson_depth_loss_reference
+
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(12, 10, generator=g, dtype=torch.float64) * 5
+    y = 3 * x + torch.rand(12, 10, generator=g, dtype=torch.float64)
+    y[torch.rand(12, 10, generator=g) < invalid / 2] = float("nan")
+    y[torch.rand(12, 10, generator=g) < invalid / 4] = float("inf")
+    valid = torch.rand(12, 10, generator=g) >= invalid / 2
+    if constant:
+        y = torch.where(torch.isfinite(y), torch.full_like(y, 2.0), y)
+    if few:
+        valid = torch.zeros_like(valid)
+        valid[0, 0] = True
+    a, b = x.clone().requires_grad_(True), x.clone().requires_grad_(True)
+    fast, ref = pearson_depth_loss(a, y, valid), pearson_depth_loss_reference(b, y, valid)
+    torch.testing.assert_close(fast, ref, rtol=1e-10, atol=1e-12)
+    fast.backward()
+    ref.backward()
+    torch.testing.assert_close(a.grad, b.grad, rtol=1e-8, atol=1e-12)
+
+
+def test_nearest_neighbour_scale_equals_brute_force():
+    from panorecon.splat.model import nearest_neighbour_scale
+
+    rng = np.random.default_rng(3)
+    xyz = rng.normal(size=(300, 3))
+    xyz[10] = xyz[11]  # a duplicate: distance 0 to its twin
+    d = np.linalg.norm(xyz[:, None] - xyz[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    np.testing.assert_allclose(nearest_neighbour_scale(xyz, 3), np.sort(d, 1)[:, :3].mean(1), rtol=1e-12)
+    np.testing.assert_allclose(nearest_neighbour_scale(xyz[:2], 3), [d[0, 1], d[0, 1]], rtol=1e-12)
+    assert nearest_neighbour_scale(xyz[:1]).tolist() == [1.0]

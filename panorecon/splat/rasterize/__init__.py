@@ -1,6 +1,7 @@
 """Gaussian rasterization behind one gsplat-like function. Backends: ``torch`` (the pure-PyTorch reference),
 ``cpu`` (C++ with a hand-written backward) and ``gsplat`` (CUDA); ``auto`` picks ``gsplat`` for CUDA tensors
-when gsplat is installed, else ``cpu`` when it builds, else ``torch``."""
+when gsplat is built and runs, ``cpu`` for CPU tensors when it builds, else ``torch``. Per-Gaussian contributions
+for gsplat come from ``contrib.py``."""
 from __future__ import annotations
 
 import logging
@@ -19,17 +20,24 @@ _announced: set[str] = set()
 
 
 def resolve_backend(backend: str, cuda_tensors: bool = False) -> str:
-    """'auto' -> 'gsplat' for CUDA tensors when gsplat is installed, else 'cpu' when the C++ kernel is
-    available, else 'torch'."""
+    """'auto' -> for CUDA tensors 'gsplat' when it is built and runs, else 'torch'; for CPU tensors 'cpu' when
+    the C++ kernel is available, else 'torch'. A named backend that cannot serve the tensors is refused."""
     if backend not in BACKENDS:
         raise ValueError(f"backend={backend!r}: expected one of {BACKENDS}")
     if backend == "cpu" and not cpu_backend.available():
         raise RuntimeError("backend='cpu' asked for, but the C++ rasterizer could not be built (see the log)")
+    if backend == "cpu" and cuda_tensors:
+        raise RuntimeError("backend='cpu' renders CPU tensors; for CUDA tensors use backend 'gsplat' or 'torch'")
     if backend == "gsplat" and not gsplat_backend.available():
-        raise RuntimeError("backend='gsplat' asked for, but CUDA or the gsplat package is missing "
+        raise RuntimeError(f"backend='gsplat' asked for, but it cannot run here: {gsplat_backend.unavailable_reason()} "
                            "(pip install 'panorecon[cuda]' on a CUDA machine)")
-    chosen = backend if backend != "auto" else ("gsplat" if cuda_tensors and gsplat_backend.available() else
-                                                "cpu" if cpu_backend.available() else "torch")
+    if backend == "gsplat" and not cuda_tensors:
+        raise RuntimeError("backend='gsplat' renders CUDA tensors; for CPU tensors use backend 'cpu' or 'torch'")
+    if backend == "auto":
+        chosen = (("gsplat" if gsplat_backend.available() else "torch") if cuda_tensors
+                  else "cpu" if cpu_backend.available() else "torch")
+    else:
+        chosen = backend
     if chosen not in _announced:
         _announced.add(chosen)
         log.info("rasterizer backend: %s%s", chosen, " (auto)" if backend == "auto" else "")
@@ -42,18 +50,17 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     """Render Gaussians into C cameras.
 
     means [N,3] metres; quats [N,4] wxyz (any norm, zero = identity); scales [N,3] metres (linear);
-    opacities [N] in [0,1]; colors [N,3] RGB or SH coefficients [N,K,3] with ``sh_degree``; viewmats [C,4,4]
+    opacities [N] in [0,1]; colors [N,3] RGB, [C,N,D] per camera, or SH coefficients [N,K,3] with ``sh_degree``;
+    viewmats [C,4,4]
     world-to-camera (OpenCV); Ks [C,3,3]. Returns image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1]
     (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
     radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
     """
     backend = resolve_backend(backend, means.is_cuda)
     if backend == "gsplat":
-        if return_contrib:
-            raise ValueError("return_contrib: gsplat does not return per-Gaussian contributions; use backend='cpu' or 'torch'")
         image, alpha, depth, meta = gsplat_backend.rasterize_gsplat(
             means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree, near_plane, far_plane,
-            backgrounds, eps2d, tile_size)
+            backgrounds, eps2d, tile_size, return_contrib)
         return image, alpha, depth, {**meta, "backend": backend}
     # the C++ projection does not differentiate w.r.t. the cameras: the reference runs when they need gradients
     project = (cpu_backend.project if backend == "cpu" and not (viewmats.requires_grad or Ks.requires_grad)
@@ -61,9 +68,12 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     means2d, conics, depths, radii = project(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane,
                                              eps2d)
     if sh_degree is None:
-        if colors.dim() != 2 or colors.shape[-1] != 3:
-            raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB (or pass sh_degree for [N, K, 3])")
-        cols = colors[None].expand(len(viewmats), -1, -1)
+        per_camera = (colors.dim() == 3 and colors.shape[0] == len(viewmats)
+                      and (backend == "torch" or colors.shape[-1] == 3))
+        if not per_camera and (colors.dim() != 2 or colors.shape[-1] != 3):
+            raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB, [C, N, D] per camera (D = 3 "
+                             "on the cpu backend), or SH coefficients [N, K, 3] with sh_degree")
+        cols = colors if per_camera else colors[None].expand(len(viewmats), -1, -1)
     else:
         campos = -torch.einsum("cji,cj->ci", viewmats[:, :3, :3], viewmats[:, :3, 3])
         dirs = means[None] - campos[:, None]

@@ -1,0 +1,55 @@
+"""Where tensors live: ``--device auto|cpu|cuda`` resolved once, and what a run records about its device.
+
+Shared by every layer that holds torch tensors (fusion's CG solve, the trainer, the CLI), like ``io/``.
+"""
+from __future__ import annotations
+
+import platform
+
+import torch
+
+from .io import PanoreconInputError
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(name: str | torch.device = "auto") -> torch.device:
+    """'auto' -> CUDA when a CUDA device is present, else the CPU; 'cpu'; 'cuda' or 'cuda:K' (refused with a
+    ``PanoreconInputError`` where torch sees no such device)."""
+    if isinstance(name, torch.device):
+        name = str(name)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cpu":
+        return torch.device("cpu")
+    if name == "cuda" or name.startswith("cuda:"):
+        if not torch.cuda.is_available():
+            why = "torch was built without CUDA" if torch.version.cuda is None else "no CUDA device is visible"
+            raise PanoreconInputError(f"--device {name}: {why} (torch {torch.__version__}); use --device cpu or auto")
+        dev = torch.device(name)
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise PanoreconInputError(f"--device {name}: only {torch.cuda.device_count()} CUDA device(s) here")
+        return dev
+    raise PanoreconInputError(f"--device {name!r}: expected one of {', '.join(DEVICES)} (or cuda:K)")
+
+
+def synchronize(device: torch.device) -> None:
+    """Wait for the device's queued work (so that wall-clock timings include it); a no-op on the CPU."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def reset_peak_memory(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+
+
+def device_record(device: torch.device) -> dict:
+    """{'device': 'cpu' | 'cuda:K', 'device_name': the GPU's or CPU's name, 'peak_gpu_memory_mb': peak
+    allocated by torch on that GPU since the last ``reset_peak_memory`` (MiB), or 'n/a: ...' on the CPU}."""
+    if device.type == "cuda":
+        index = device.index if device.index is not None else torch.cuda.current_device()
+        return {"device": f"cuda:{index}", "device_name": torch.cuda.get_device_name(index),
+                "peak_gpu_memory_mb": torch.cuda.max_memory_allocated(index) / 2**20}
+    return {"device": "cpu", "device_name": platform.processor() or platform.machine(),
+            "peak_gpu_memory_mb": "n/a: CPU run"}
