@@ -60,11 +60,12 @@ def test_a_truncated_or_empty_ply_is_refused(tmp_path):
     import pytest
 
     from panorecon.geometry import PointCloud
+    from panorecon.io import PanoreconInputError
 
     _cloud().save_ply(tmp_path / "a.ply")
     raw = (tmp_path / "a.ply").read_bytes()
     (tmp_path / "t.ply").write_bytes(raw[:-10])
-    with pytest.raises(ValueError, match="truncated"):
+    with pytest.raises(PanoreconInputError, match="cut-off or corrupt"):
         PointCloud.load_ply(tmp_path / "t.ply")
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(PanoreconInputError, match="no such file"):
         PointCloud.load_ply(tmp_path / "none.ply")
