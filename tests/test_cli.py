@@ -91,3 +91,19 @@ def test_train_command(tmp_path, capsys):
     m = json.loads((tmp_path / "t" / "metrics.json").read_text())
     assert m["iterations"] == 20 and "psnr" in m["pseudo-label"] and "psnr" in m["held-out"]
     assert "pseudo-label PSNR" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("teacher, needle", [("sim:relative", "has no ground-truth depth"),
+                                             ("file:zero.npy", "zero.npy: holds no valid depth"),
+                                             ("file:zero.npy?scale=", "scale='' is not a number")])
+def test_teacher_mistakes_are_one_line_and_write_nothing(tmp_path, monkeypatch, capsys, teacher, needle):
+    from panorecon.io import write_image
+
+    monkeypatch.chdir(tmp_path)
+    write_image(tmp_path / "pano.png", np.zeros((32, 64, 3), np.uint8))
+    np.save(tmp_path / "zero.npy", np.zeros((32, 64)))
+    scene = "pano.png" if teacher.startswith("sim") else "bedroom"
+    assert main(["points", scene, "--source", "fibonacci", "--teacher", teacher, "--width", "64",
+                 "--out", "X/c.ply"]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1 and not (tmp_path / "X").exists()
