@@ -107,3 +107,13 @@ def test_teacher_mistakes_are_one_line_and_write_nothing(tmp_path, monkeypatch, 
                  "--out", "X/c.ply"]) == 2
     err = capsys.readouterr().err
     assert needle in err and err.count("\n") == 1 and not (tmp_path / "X").exists()
+
+
+def test_a_screenshot_keeps_vtk_noise_off_the_terminal(tmp_path, capfd):
+    from panorecon.geometry import PointCloud
+
+    PointCloud(np.random.default_rng(0).normal(size=(200, 3)), np.full((200, 3), 0.5)).save_ply(tmp_path / "c.ply")
+    capfd.readouterr()
+    assert main(["inspect", str(tmp_path / "c.ply"), "--screenshot", str(tmp_path / "s.png")]) == 0
+    out, err = capfd.readouterr()
+    assert err == "" and "c.ply: 200 points" in out and read_image(tmp_path / "s.png").std() > 1
