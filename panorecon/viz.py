@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .geometry.pointcloud import PointCloud
-from .io import PanoreconInputError, atomic_write
+from .io import PanoreconInputError, atomic_write, quiet_native_stderr
 
 
 def point_scalars(pc: PointCloud) -> dict[str, np.ndarray]:
@@ -53,12 +53,15 @@ def screenshot(pc: PointCloud, out: str | os.PathLike, scalar: str | None = None
     if len(pc) == 0:
         raise PanoreconInputError("the point cloud is empty: nothing to show")
     out = Path(out)
-    plotter = _plotter(pc, scalar, point_size, off_screen=True, clip_z=clip_z)
-    try:
-        with atomic_write(out, suffix=".png") as tmp:
-            plotter.screenshot(str(tmp))
-    finally:
-        plotter.close()
+    with quiet_native_stderr():  # VTK's "bad X server connection" noise: off-screen rendering needs no display
+        plotter = _plotter(pc, scalar, point_size, off_screen=True, clip_z=clip_z)
+        try:
+            with atomic_write(out, suffix=".png") as tmp:
+                plotter.screenshot(str(tmp))
+                if tmp.stat().st_size == 0:
+                    raise OSError(f"could not render a screenshot to {out} (VTK wrote nothing)")
+        finally:
+            plotter.close()
     return out
 
 

@@ -122,3 +122,29 @@ def test_resolve_device():
     assert resolve_device("cpu") == torch.device("cpu")
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
     assert device_record(torch.device("cpu"))["peak_gpu_memory_mb"].startswith("n/a")
+
+
+@pytest.mark.parametrize("teacher, needle", [("sim:relative", "has no true depth"),
+                                             ("file:zero.npy", "zero.npy: holds no valid depth"),
+                                             ("file:zero.npy?scale=", "scale='' is not a number")])
+def test_teacher_mistakes_are_one_line_and_write_nothing(tmp_path, monkeypatch, capsys, teacher, needle):
+    from panorecon.io import write_image
+
+    monkeypatch.chdir(tmp_path)
+    write_image(tmp_path / "pano.png", np.zeros((32, 64, 3), np.uint8))
+    np.save(tmp_path / "zero.npy", np.zeros((32, 64)))
+    scene = "pano.png" if teacher.startswith("sim") else "bedroom"
+    assert main(["points", scene, "--source", "fibonacci", "--teacher", teacher, "--width", "64",
+                 "--out", "X/c.ply"]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1 and not (tmp_path / "X").exists()
+
+
+def test_a_screenshot_keeps_vtk_noise_off_the_terminal(tmp_path, capfd):
+    from panorecon.geometry import PointCloud
+
+    PointCloud(np.random.default_rng(0).normal(size=(200, 3)), np.full((200, 3), 0.5)).save_ply(tmp_path / "c.ply")
+    capfd.readouterr()
+    assert main(["inspect", str(tmp_path / "c.ply"), "--screenshot", str(tmp_path / "s.png")]) == 0
+    out, err = capfd.readouterr()
+    assert err == "" and "c.ply: 200 points" in out and read_image(tmp_path / "s.png").std() > 1

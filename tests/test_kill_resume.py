@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-pytestmark = pytest.mark.slow  # ~1 min each on a shared 2-core machine
+pytestmark = pytest.mark.slow  # 0.5 to 3 min each on the shared 2-core machine
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN = ["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--views", "8", "--width", "64",

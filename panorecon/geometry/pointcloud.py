@@ -186,7 +186,7 @@ def check_ply_header(path: Path) -> int:
         raise PanoreconInputError(f"point cloud {path}: not a PLY file (expected a 'ply' header ending in end_header)")
     body_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
     lines = head[:end].decode("ascii", "replace").splitlines()
-    fmt, elements = None, []  # [name, count, row bytes or None when it has list properties]
+    fmt, elements, vertex_props = None, [], set()  # elements: [name, count, row bytes or None (list properties)]
     for ln in lines:
         w = ln.split()
         if not w:
@@ -197,6 +197,8 @@ def check_ply_header(path: Path) -> int:
             elif w[0] == "element":
                 elements.append([w[1], int(w[2]), 0])
             elif w[0] == "property" and elements:
+                if elements[-1][0] == "vertex":
+                    vertex_props.add(w[-1])
                 size = None if w[1] == "list" or elements[-1][2] is None else _PLY_SIZES.get(w[1])
                 elements[-1][2] = None if size is None else elements[-1][2] + size
         except (IndexError, ValueError):
@@ -205,7 +207,16 @@ def check_ply_header(path: Path) -> int:
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian") or not vertex or vertex[0][1] <= 0:
         raise PanoreconInputError(f"point cloud {path}: the PLY header has no vertices or an unknown format "
                                   f"({fmt!r}); expected 'element vertex N' with N > 0")
-    if fmt != "ascii" and all(e[2] is not None for e in elements):
+    if not {"x", "y", "z"} <= vertex_props:
+        raise PanoreconInputError(f"point cloud {path}: its vertices have no x, y, z properties")
+    if fmt == "ascii":
+        with open(path, "rb") as f:
+            f.seek(body_start)
+            rows = sum(1 for line in f if line.strip())
+        if rows < sum(e[1] for e in elements):
+            raise PanoreconInputError(f"point cloud {path}: {rows} data lines for the {sum(e[1] for e in elements)} "
+                                      "rows its header announces (cut-off or corrupt file)")
+    elif all(e[2] is not None for e in elements):
         expected = body_start + sum(e[1] * e[2] for e in elements)
         actual = path.stat().st_size
         if actual != expected:

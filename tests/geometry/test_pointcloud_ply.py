@@ -54,3 +54,14 @@ def test_an_ascii_ply_from_elsewhere_is_read(tmp_path):
                                     "property float z\nend_header\n0 0 1\n1 2 3\n")
     pc = PointCloud.load_ply(tmp_path / "a.ply")
     np.testing.assert_allclose(pc.xyz, [[0, 0, 1], [1, 2, 3]])
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("element vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 1\n1 2 3\n",
+     "2 data lines"),
+    ("element vertex 2\nproperty float x\nend_header\n1\n2\n", "no x, y, z"),
+])
+def test_a_short_or_positionless_ascii_ply_is_refused(tmp_path, text, needle):
+    (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\n" + text)
+    with pytest.raises(PanoreconInputError, match=needle):
+        PointCloud.load_ply(tmp_path / "a.ply")

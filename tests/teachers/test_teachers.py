@@ -60,7 +60,11 @@ def test_sky_is_never_valid():
 
 
 def test_sim_needs_truth(real_data, cams):
+<<<<<<< HEAD
     with pytest.raises(ValueError, match="has no true depth.*with --depth"):
+=======
+    with pytest.raises(PanoreconInputError, match="ground-truth"):
+>>>>>>> i21
         get_teacher("sim:clean").predict_views(load_scene("hohonet", 128), cams)
 
 
@@ -81,6 +85,17 @@ class TestFileTeacher:
     def test_bad_specs(self, spec, needle):
         with pytest.raises(PanoreconInputError, match=needle):
             get_teacher(spec)
+
+    @pytest.mark.parametrize("fill", [0.0, np.nan, np.inf, -1.0], ids=["zero", "nan", "inf", "negative"])
+    def test_a_map_with_no_valid_depth_is_one_input_error(self, tmp_path, fill):
+        np.save(tmp_path / "d.npy", np.full((8, 16), fill, np.float32))
+        with pytest.raises(PanoreconInputError, match="d.npy: holds no valid depth"):
+            get_teacher(f"file:{tmp_path / 'd.npy'}")
+
+    def test_an_empty_scale_is_refused_not_read_as_1(self, tmp_path):
+        np.save(tmp_path / "d.npy", np.ones((8, 16), np.float32))
+        with pytest.raises(PanoreconInputError, match="scale='' is not a number"):
+            get_teacher(f"file:{tmp_path / 'd.npy'}?scale=")
 
     def test_npy_must_be_2_to_1(self, tmp_path):
         np.save(tmp_path / "d.npy", np.ones((10, 10), np.float32))
