@@ -1,13 +1,16 @@
-"""Monocular depth teachers behind one interface: ``sim:<profile>``, ``onnx:<path>``, ``file:<path>``."""
+"""Monocular depth teachers behind one interface: ``sim:<profile>``, ``onnx:<path>``, ``file:<path>``,
+``hf:<model id or folder>`` (transformers)."""
 from __future__ import annotations
 
 from .base import ErpDepth, Teacher
+from .hf_teacher import OUTPUT_KINDS
 from .sim import PROFILES, SimProfile, SimTeacher
 from ..io import PanoreconInputError
 
 
 def get_teacher(spec: str, seed: int = 0) -> Teacher:
-    """Parse a teacher spec: ``sim:<profile>``, ``onnx:<model.onnx>`` or ``file:<path>[?scale=S&metric=1]``."""
+    """Parse a teacher spec: ``sim:<profile>``, ``onnx:<model.onnx>``, ``file:<path>[?scale=S&metric=1]`` or
+    ``hf:<model id or folder>[?batch=N&device=D]``."""
     kind, _, arg = spec.partition(":")
     if kind == "sim":
         if arg not in PROFILES:
@@ -22,7 +25,12 @@ def get_teacher(spec: str, seed: int = 0) -> Teacher:
         from .file_teacher import FileTeacher
 
         return FileTeacher(arg)
-    raise PanoreconInputError(f"teacher {spec!r}: expected sim:<profile>, onnx:<model.onnx> or file:<depth.png|.npy>")
+    if kind == "hf":
+        from .hf_teacher import HFTeacher
+
+        return HFTeacher(arg)
+    raise PanoreconInputError(f"teacher {spec!r}: expected sim:<profile>, onnx:<model.onnx>, file:<depth.png|.npy> "
+                              "or hf:<model id or folder>")
 
 
 def list_teachers() -> list[tuple[str, str]]:
@@ -30,6 +38,9 @@ def list_teachers() -> list[tuple[str, str]]:
     rows = [(f"sim:{p.name}", f"simulated ({p.description})") for p in PROFILES.values()]
     rows += [("onnx:<model.onnx>", "an ONNX monocular depth model with a <model>.json config (needs onnxruntime)"),
              ("file:<depth>[?scale=S&metric=1]", "a precomputed ERP ray-distance map (16-bit PNG x scale, or .npy metres)")]
+    rows += [("hf:<model id or folder>", "a transformers depth model, local only (needs transformers); by model_type:")]
+    rows += [(f"  {m}" + (f" ({t})" if t else ""), f"{o.description}; fusion aligns: {o.alignment}"
+              + ("; gets the view's FOV" if o.takes_fov else "")) for (m, t), o in OUTPUT_KINDS.items()]
     return rows
 
 

@@ -55,3 +55,12 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
     return d.astype(np.float32), sky
 
 
+
+
+def sky_of_view(scene, cam: PinholeCamera) -> np.ndarray:
+    """[h, w] bool: the view's pixels whose nearest ERP pixel is sky."""
+    if not scene.sky.any():
+        return np.zeros((cam.height, cam.width), bool)
+    from ..geometry import erp_to_perspective
+
+    return erp_to_perspective(scene.sky.astype(np.uint8), cam, "nearest").astype(bool)

@@ -23,7 +23,7 @@ def cams():
 def test_listed_and_named_sim(bedroom):
     specs = [s for s, _ in list_teachers()]
     assert {"sim:clean", "sim:relative", "sim:affine-disparity"} <= set(specs)
-    assert all(s.startswith(("sim:", "onnx:", "file:")) for s in specs)
+    assert all(s.startswith(("sim:", "onnx:", "file:", "hf:", "  ")) for s in specs)  # "  ": hf: output kinds
     with pytest.raises(PanoreconInputError, match="unknown simulated profile"):
         get_teacher("sim:depth-anything")
     with pytest.raises(PanoreconInputError, match="expected sim:"):
