@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import importlib.util
 import inspect
-import math
 from dataclasses import dataclass
 from typing import Sequence
 from urllib.parse import parse_qs
@@ -23,7 +22,7 @@ import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, erp_to_perspective
 from ..io import PanoreconInputError
-from .base import ErpDepth, sky_of_view
+from .base import ErpDepth, batches_by_size, sky_of_view, view_fov_deg
 
 
 @dataclass(frozen=True)
@@ -132,14 +131,7 @@ class HFTeacher:
         import torch
         from tqdm import tqdm
 
-        order = sorted(range(len(images)), key=lambda i: images[i].shape[:2])  # a batch holds one image size
-        batches, cur = [], []
-        for i in order:
-            if cur and (len(cur) == self.batch or images[i].shape[:2] != images[cur[0]].shape[:2]):
-                batches.append(cur)
-                cur = []
-            cur.append(i)
-        batches += [cur] if cur else []
+        batches = batches_by_size(images, self.batch)
         results: list[np.ndarray | None] = [None] * len(images)
         for idx in tqdm(batches, desc=self.name, unit="batch", disable=not self.progress or len(batches) < 2):
             sizes = [tuple(images[i].shape[:2]) for i in idx]
@@ -162,8 +154,7 @@ class HFTeacher:
         return ok if self.output.affine else ok & (out > 0)
 
     def predict_views(self, scene, cameras: Sequence[PinholeCamera]) -> list[ViewDepth]:
-        fovs = [math.degrees(2 * math.atan(c.width / (2 * c.K[0, 0]))) for c in cameras]
-        outs = self.run([erp_to_perspective(scene.rgb, c) for c in cameras], fovs)
+        outs = self.run([erp_to_perspective(scene.rgb, c) for c in cameras], [view_fov_deg(c) for c in cameras])
         o = self.output
         return [ViewDepth(c, d, o.kind, self._valid(d) & ~sky_of_view(scene, c), affine=o.affine, metric=o.metric)
                 for c, d in zip(cameras, outs)]
