@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io import peak_rss_mb, write_json
+from ..teachers import teacher_fingerprint
 from .cache import StageCache, stage_key
 
 POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
@@ -37,11 +38,13 @@ class Row:
 
     def points_key(self) -> str:
         return stage_key("points", {"scene": self.scene, "width": self.width, "source": self.source,
-                                    "teacher": self._teacher_for_points(), "views": self.views}, code=POINTS_CODE)
+                                    "teacher": teacher_fingerprint(self._teacher_for_points()), "views": self.views},
+                         code=POINTS_CODE)
 
     def train_key(self) -> str:
-        return stage_key("train", {"scene": self.scene, "width": self.width, "teacher": self.teacher,
-                                   "config": self.train_config_dict()}, (self.points_key(),), TRAIN_CODE)
+        return stage_key("train", {"scene": self.scene, "width": self.width,
+                                   "teacher": teacher_fingerprint(self.teacher), "config": self.train_config_dict()},
+                         (self.points_key(),), TRAIN_CODE)
 
     def train_config_dict(self) -> dict:
         from ..splat.trainer import TrainConfig

@@ -2,6 +2,9 @@
 ``hf:<model id or folder>`` (transformers), ``moge:<checkpoint>`` (MoGe's package)."""
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 from .base import ErpDepth, Teacher
 from .hf_teacher import OUTPUT_KINDS
 from .sim import PROFILES, SimProfile, SimTeacher
@@ -37,6 +40,38 @@ def get_teacher(spec: str, seed: int = 0) -> Teacher:
                               "hf:<model id or folder> or moge:<checkpoint>")
 
 
+def teacher_fingerprint(spec: str | None) -> str | None:
+    """``spec``, and for teachers that load files (onnx:, file:, hf:, moge:) ``spec#<digest>`` of the files'
+    relative names, sizes and modification times: a stage cache keyed by it recomputes when the model on disk
+    changes. A model id is looked up in the Hugging Face cache (its snapshot folder names the commit); a spec
+    whose files are not found is returned as is (loading it fails with the reason)."""
+    if not spec:
+        return spec
+    kind, _, arg = spec.partition(":")
+    if kind not in ("onnx", "file", "hf", "moge"):
+        return spec
+    path = Path(arg.partition("?")[0])
+    if kind == "onnx":
+        root, files = path.parent, [path, path.with_suffix(".json")]
+    elif path.is_file():
+        root, files = path.parent, [path]
+    else:
+        root = path
+        if not path.is_dir() and kind in ("hf", "moge"):
+            try:
+                from huggingface_hub import snapshot_download
+
+                root = Path(snapshot_download(str(path), local_files_only=True))
+            except Exception:  # noqa: BLE001 -- not in the cache, or not a repo id
+                return spec
+        files = sorted(f for f in root.rglob("*") if f.is_file())
+    h = hashlib.sha256()
+    for f in (f for f in files if f.is_file()):
+        st = f.stat()
+        h.update(f"{f.relative_to(root)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+    return f"{spec}#{h.hexdigest()[:12]}" if any(f.is_file() for f in files) else spec
+
+
 def list_teachers() -> list[tuple[str, str]]:
     """(spec, description) of every teacher kind."""
     rows = [(f"sim:{p.name}", f"simulated ({p.description})") for p in PROFILES.values()]
@@ -51,4 +86,4 @@ def list_teachers() -> list[tuple[str, str]]:
     return rows
 
 
-__all__ = ["ErpDepth", "Teacher", "SimProfile", "SimTeacher", "PROFILES", "get_teacher", "list_teachers"]
+__all__ = ["ErpDepth", "Teacher", "SimProfile", "SimTeacher", "PROFILES", "get_teacher", "list_teachers", "teacher_fingerprint"]
