@@ -3,6 +3,7 @@
 batched equal to unbatched) and tiny random-weight Depth Anything (relative, metric) and DPT models built from
 their configs, end to end through ``points`` and ``train``."""
 import json
+import os
 import types
 
 import numpy as np
@@ -90,12 +91,6 @@ def test_zoedepth_runs_where_torchvision_is_else_one_line(tmp_path):
     assert views[0].metric and views[0].depth.shape == (40, 40)
 
 
-@pytest.fixture(autouse=True)
-def offline_hub(tmp_path, monkeypatch):
-    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf_home"))  # an empty Hugging Face cache
-    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
-
-
 def test_output_kinds_come_from_the_config():
     assert output_kind(_depth_anything("relative")) == OUTPUT_KINDS[("depth_anything", "relative")]
     assert output_kind(_depth_anything("relative")).affine and output_kind(_dpt()).kind == "disparity"
@@ -114,6 +109,27 @@ def test_a_model_not_on_the_machine_is_one_line(spec):
         get_teacher(spec)
     msg = str(e.value)
     assert "\n" not in msg and spec in msg and "hf download" in msg
+
+
+def test_a_model_id_in_the_hub_cache_loads_offline(models, tmp_path):
+    """A model id resolves from the Hugging Face cache layout (refs/main -> snapshots/<commit>) with
+    HF_HUB_OFFLINE=1 in a fresh process (huggingface_hub reads its cache and offline settings at import)."""
+    import shutil
+    import subprocess
+    import sys
+
+    repo = tmp_path / "hf_home" / "hub" / "models--tiny-org--tiny-dpt"
+    commit = "0123456789abcdef0123456789abcdef01234567"
+    shutil.copytree(models["dpt"], repo / "snapshots" / commit)
+    (repo / "refs").mkdir()
+    (repo / "refs" / "main").write_text(commit)
+    code = ("from panorecon.teachers import get_teacher, teacher_fingerprint; t = get_teacher('hf:tiny-org/tiny-dpt'); "
+            "print(t.output.kind, teacher_fingerprint('hf:tiny-org/tiny-dpt'))")
+    env = {**os.environ, "HF_HOME": str(tmp_path / "hf_home"), "HF_HUB_OFFLINE": "1"}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    kind, fingerprint = run.stdout.split()[-2:]
+    assert kind == "disparity" and fingerprint.startswith("hf:tiny-org/tiny-dpt#")
 
 
 def test_cli_missing_model_exits_2_and_writes_nothing(tmp_path, capsys):

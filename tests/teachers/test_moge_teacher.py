@@ -40,12 +40,6 @@ def moge2(tmp_path_factory):
     return folder
 
 
-@pytest.fixture(autouse=True)
-def offline_hub(tmp_path, monkeypatch):
-    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf_home"))
-    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
-
-
 def test_version_and_output_from_the_config():
     assert moge_output_kind(TINY_V2) == (2, MOGE2_METRIC) and MOGE2_METRIC.metric
     assert moge_output_kind({k: v for k, v in TINY_V2.items() if k != "scale_head"}) == (2, MOGE1)
