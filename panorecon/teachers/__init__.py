@@ -86,4 +86,5 @@ def list_teachers() -> list[tuple[str, str]]:
     return rows
 
 
-__all__ = ["ErpDepth", "Teacher", "SimProfile", "SimTeacher", "PROFILES", "get_teacher", "list_teachers", "teacher_fingerprint"]
+__all__ = ["ErpDepth", "Teacher", "SimProfile", "SimTeacher", "PROFILES", "get_teacher", "list_teachers",
+           "teacher_fingerprint"]

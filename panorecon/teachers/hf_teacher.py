@@ -40,7 +40,9 @@ class OutputKind:
     @property
     def description(self) -> str:
         what = {"disparity": "disparity", "z": "z-depth"}[self.kind]
-        return f"affine-invariant {what}" if self.affine else f"metric {what} (m)" if self.metric else f"relative {what}"
+        if self.affine:
+            return f"affine-invariant {what}"
+        return f"metric {what} (m)" if self.metric else f"relative {what}"
 
     @property
     def alignment(self) -> str:
@@ -118,9 +120,11 @@ class HFTeacher:
             self.processor = AutoImageProcessor.from_pretrained(source, local_files_only=True)
             model = AutoModelForDepthEstimation.from_pretrained(source, local_files_only=True)
         except ImportError as e:
-            raise PanoreconInputError(f"teacher hf:{source}: {str(e).strip().splitlines()[0]}") from None
+            first = (str(e).strip() or type(e).__name__).splitlines()[0]
+            raise PanoreconInputError(f"teacher hf:{source}: {first}") from None
         except (OSError, ValueError) as e:
-            raise PanoreconInputError(f"teacher hf:{source}: cannot load it ({str(e).strip().splitlines()[0]})") from None
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise PanoreconInputError(f"teacher hf:{source}: cannot load it ({first})") from None
         self.model = model.to(self.device, self.dtype).eval()
         self._post_args = set(inspect.signature(self.processor.post_process_depth_estimation).parameters)
 

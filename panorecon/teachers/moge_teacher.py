@@ -53,7 +53,8 @@ class MoGeTeacher:
             raise PanoreconInputError(f"teacher moge:{spec}: batch={opts['batch']!r} must be a positive integer")
         device = opts.get("device", "cuda" if torch.cuda.is_available() else "cpu")
         if device not in ("cpu", "cuda") or (device == "cuda" and not torch.cuda.is_available()):
-            raise PanoreconInputError(f"teacher moge:{spec}: device={device!r}: expected cpu, or cuda where CUDA exists")
+            raise PanoreconInputError(f"teacher moge:{spec}: device={device!r}: expected cpu, or cuda where CUDA "
+                                      "exists")
         self.name, self.progress, self.device = f"moge:{spec}", progress, torch.device(device)
         path = _checkpoint(source)
         try:

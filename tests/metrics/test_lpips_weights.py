@@ -25,7 +25,8 @@ class _Evil:
 
 
 @pytest.mark.parametrize("obj", [_Evil(), {"a": _Evil()}, {"a": [np.zeros(2, np.float32)]},
-                                 {"a": np.zeros(2, np.float64)}, [np.zeros(2, np.float32)], {1: np.zeros(1, np.float32)}],
+                                 {"a": np.zeros(2, np.float64)}, [np.zeros(2, np.float32)],
+                                 {1: np.zeros(1, np.float32)}],
                          ids=["global", "nested-global", "list", "float64", "not-a-dict", "int-key"])
 def test_unpickler_refuses_anything_but_float32_arrays(obj):
     with pytest.raises(pickle.UnpicklingError):

@@ -21,12 +21,13 @@ from panorecon.io import PanoreconInputError  # noqa: E402
 from panorecon.scenes import load_scene  # noqa: E402
 from panorecon.teachers import get_teacher, list_teachers  # noqa: E402
 from panorecon.teachers.base import sky_of_view  # noqa: E402
-from panorecon.teachers.hf_teacher import OUTPUT_KINDS, HFTeacher, output_kind  # noqa: E402
+from panorecon.teachers.hf_teacher import OUTPUT_KINDS, output_kind  # noqa: E402
 
 
 def _dinov2():
     return Dinov2Config(hidden_size=16, num_hidden_layers=4, num_attention_heads=2, intermediate_size=32, patch_size=14,
-                        image_size=56, out_features=["stage1", "stage2", "stage3", "stage4"], reshape_hidden_states=False)
+                        image_size=56, out_features=["stage1", "stage2", "stage3", "stage4"],
+                        reshape_hidden_states=False)
 
 
 def _depth_anything(kind: str):
