@@ -33,6 +33,8 @@ _SCALE = (0.458, 0.448, 0.450)
 # AlexNet conv layers as (in, out, kernel, stride, padding); a max-pool (3, 2) follows the first two
 _ALEX = ((3, 64, 11, 4, 2), (64, 192, 5, 1, 2), (192, 384, 3, 1, 1), (384, 256, 3, 1, 1), (256, 256, 3, 1, 1))
 _FEATURE_INDEX = (0, 3, 6, 8, 10)  # positions of those convs in torchvision's alexnet.features
+# smallest image side AlexNet's two max-pools accept: conv1 (11, 4, 2) must leave 7 columns for pool, pool, pool
+MIN_SIZE = 31
 
 
 class AlexLPIPS(nn.Module):
@@ -92,8 +94,11 @@ def _load(alex_path: str, lin_path: str | None) -> AlexLPIPS:
                                     torch.load(lin_path, map_location="cpu", weights_only=True))
 
 
-def lpips_or_reason() -> AlexLPIPS | str:
-    """The loaded LPIPS network, or ``"n/a: no LPIPS weights (...)"`` naming the command that makes them."""
+def lpips_or_reason(size: int | None = None) -> AlexLPIPS | str:
+    """The loaded LPIPS network, or ``"n/a: no LPIPS weights (...)"`` naming the command that makes them, or
+    ``"n/a: ..."`` when the images' smaller side ``size`` (pixels) is below AlexNet's :data:`MIN_SIZE`."""
+    if size is not None and size < MIN_SIZE:
+        return f"n/a: {size} px images are smaller than LPIPS(alex)'s {MIN_SIZE} px minimum"
     converted = converted_path()
     if converted.is_file():
         return _load(str(converted), None)

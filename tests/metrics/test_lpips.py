@@ -54,3 +54,17 @@ def test_first_layer_matches_a_direct_convolution(tmp_path, monkeypatch):
     scaled = (2 * x - 1 - torch.tensor(lp._SHIFT).view(1, 3, 1, 1)) / torch.tensor(lp._SCALE).view(1, 3, 1, 1)
     want = torch.relu(torch.nn.functional.conv2d(scaled, alex["features.0.weight"], alex["features.0.bias"], 4, 2))
     torch.testing.assert_close(net.features(x)[0], want)
+
+
+def test_min_size_is_the_smallest_image_alexnet_accepts(tmp_path, monkeypatch):
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path / "cache"))
+    _fake_weight_files(tmp_path / "hub" / "checkpoints")
+    net = lp.lpips_or_reason(lp.MIN_SIZE)
+    assert isinstance(net, lp.AlexLPIPS)
+    a = torch.rand(lp.MIN_SIZE, lp.MIN_SIZE + 9, 3)
+    assert lp.lpips_distance(net, a, a.flip(0)) > 0
+    with pytest.raises(RuntimeError):
+        lp.lpips_distance(net, a[1:], a[1:].flip(0))
+    reason = lp.lpips_or_reason(lp.MIN_SIZE - 1)
+    assert reason.startswith("n/a:") and f"{lp.MIN_SIZE} px minimum" in reason
