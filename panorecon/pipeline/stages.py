@@ -10,14 +10,17 @@ Each stage records its seconds and the peak resident memory of the process that 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from ..io import peak_rss_mb, write_json
+from ..io import atomic_write, peak_rss_mb, write_json
 from ..teachers import teacher_fingerprint
-from .cache import StageCache, stage_key
+from .cache import StageCache, code_digest, stage_key
 
 POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
 TRAIN_CODE = POINTS_CODE + ("splat",)
@@ -85,18 +88,42 @@ def load_row_scene(name: str, width: int, cache: StageCache):
     return scene_from_image(png, width, name=name, description=f"generated from {name!r} by {model}")
 
 
-def teacher_depth_fn(scene, teacher_spec: str | None):
-    """cameras -> list of z-like depth maps from the teacher, for the trainer's Pearson term (scale and shift do
-    not matter to it; disparity is inverted), or None without a teacher."""
+def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = None):
+    """cameras -> list of z-like depth maps [h, w] float32 from the teacher, for the trainer's Pearson term (scale
+    and shift do not matter to it; disparity is inverted), or None without a teacher. With ``cache_dir`` the maps
+    of one call are kept in ``cache_dir/<key>.npz``, the key hashing the teacher's fingerprint, the teacher and
+    geometry code, the scene's pixels and the cameras, so a network runs once per set of label views. The
+    teacher is loaded on the first call that is not cached."""
     if not teacher_spec:
         return None
-    from ..teachers import get_teacher
+    from ..teachers import get_teacher, teacher_fingerprint
 
-    teacher = get_teacher(teacher_spec)
+    teacher = []
+    fingerprint = teacher_fingerprint(teacher_spec)
+
+    def compute(cameras):
+        if not teacher:
+            teacher.append(get_teacher(teacher_spec))
+        with np.errstate(divide="ignore"):
+            return [(v.depth if v.kind != "disparity" else 1.0 / v.depth).astype(np.float32)
+                    for v in teacher[0].predict_views(scene, cameras)]
 
     def depth_fn(cameras):
-        with np.errstate(divide="ignore"):
-            return [v.depth if v.kind != "disparity" else 1.0 / v.depth for v in teacher.predict_views(scene, cameras)]
+        if cache_dir is None:
+            return compute(cameras)
+        h = hashlib.sha256(json.dumps([fingerprint, code_digest(("teachers", "geometry"))]).encode())
+        h.update(np.ascontiguousarray(scene.rgb).tobytes())
+        for c in cameras:
+            h.update(np.asarray([c.width, c.height], np.float64).tobytes() + np.asarray(c.K, np.float64).tobytes()
+                     + np.asarray(c.viewmat, np.float64).tobytes())
+        path = Path(cache_dir) / f"{h.hexdigest()[:20]}.npz"
+        if path.is_file():
+            with np.load(path) as z:
+                return [z[f"d{i}"] for i in range(len(cameras))]
+        depths = compute(cameras)
+        with atomic_write(path) as tmp:
+            np.savez(tmp, **{f"d{i}": d for i, d in enumerate(depths)})
+        return depths
 
     return depth_fn
 
@@ -149,7 +176,7 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
     scene = load_row_scene(row.scene, row.width, cache)
     cloud = PointCloud.load_ply(cache.folder("points", points["key"]) / "cloud.ply")
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
-                    teacher_depth_fn(scene, row.teacher), progress=progress)
+                    teacher_depth_fn(scene, row.teacher, cache.root / "teacher_views"), progress=progress)
     record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
               "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
     return {**cache.finish("train", key, record), "cached": False}
