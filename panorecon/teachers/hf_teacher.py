@@ -164,10 +164,11 @@ class HFTeacher:
                 for c, d in zip(cameras, outs)]
 
     def predict_erp(self, scene) -> ErpDepth:
-        """The network on the whole ERP image, its z-depth read as ray distance (as single-image baselines do);
-        an ERP image has no pinhole focal length, so a network that takes one keeps its own FOV estimate."""
+        """The network on the whole ERP image, its z-depth read as ray distance (as single-image baselines do).
+        An ERP image has no pinhole focal length: a network that takes one keeps its own FOV estimate and its
+        output is treated as relative, not metric."""
         d = self.run([scene.rgb])[0]
         o = self.output
         return ErpDepth(d, "disparity" if o.kind == "disparity" else "distance", self._valid(d) & ~scene.sky,
-                        affine=o.affine, metric=o.metric)
+                        affine=o.affine, metric=o.metric and not o.takes_fov)
 

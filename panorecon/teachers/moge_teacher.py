@@ -92,7 +92,8 @@ class MoGeTeacher:
                           & ~sky_of_view(scene, c), affine=o.affine, metric=o.metric) for c, d in zip(cameras, outs)]
 
     def predict_erp(self, scene) -> ErpDepth:
-        """MoGe on the whole ERP image with its own FOV estimate, its z-depth read as ray distance."""
+        """MoGe on the whole ERP image with its own FOV estimate (an ERP image has none), its z-depth read as ray
+        distance; MoGe-2's metric scale rests on that estimate."""
         d = self.run([scene.rgb])[0]
         return ErpDepth(np.where(np.isfinite(d), d, np.nan), "distance", np.isfinite(d) & (d > 0) & ~scene.sky,
                         metric=self.output.metric)

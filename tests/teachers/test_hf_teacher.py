@@ -232,3 +232,14 @@ def test_points_and_train_end_to_end(models, tmp_path):
                  "--out", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert np.isfinite(m["pseudo-label"]["psnr"]) and (out / "point_cloud.ply").is_file()
+
+
+def test_erp_direct_keeps_the_kind_and_drops_metric_without_a_focal(models):
+    scene = load_scene("bedroom", 128)
+    teacher = get_teacher(f"hf:{models['da-metric']}")
+    erp = teacher.predict_erp(scene)
+    assert erp.depth.shape == scene.rgb.shape[:2] and erp.kind == "distance" and erp.metric
+    teacher.output = OUTPUT_KINDS[("depth_pro", None)]  # takes a focal the ERP does not have
+    assert not teacher.predict_erp(scene).metric
+    rel = get_teacher(f"hf:{models['da-relative']}").predict_erp(scene)
+    assert rel.kind == "disparity" and rel.affine and not (rel.valid & scene.sky).any()
