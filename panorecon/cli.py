@@ -209,8 +209,10 @@ def cmd_train(args) -> int:
               device=device)
     held = m["held-out"]
     held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
+    lp = m["pseudo-label"]["lpips"]
+    lp_txt = f"{lp:.3f}" if isinstance(lp, float) else lp
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
-          f"{m['pseudo-label']['ssim']:.3f}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
+          f"{m['pseudo-label']['ssim']:.3f}, LPIPS {lp_txt}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
           f"{m['seconds']['total']:.1f} s ({m['seconds']['train']:.1f} s training); peak {m['peak_rss_mb']:.0f} MB; "
           f"{m['backend']} on {m['device_name']} -> {args.out}")
     return 0
@@ -319,7 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
     pt = sub.add_parser("points", help="build an initial point cloud with a point source and report its error")
     pt.add_argument("scene")
     pt.add_argument("--source", required=True, help="see `panorecon sources list`")
-    pt.add_argument("--teacher", default=None, help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S]")
+    pt.add_argument("--teacher", default=None, help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S] | "
+                    "hf:<model id or folder> | moge:<checkpoint> (see `panorecon teachers list`)")
     pt.add_argument("--views", type=T.VIEWS, default=None, help="number of views (fibonacci, latlong)")
     pt.add_argument("--view-size", type=T.VIEW_SIZE, default=None,
                     help="perspective view size in pixels (default: ERP width / 4, at most 512)")

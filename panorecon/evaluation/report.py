@@ -44,7 +44,8 @@ def markdown_table(table: pd.DataFrame, label_header: str) -> str:
              "|" + "---|" * (len(heads) + 2)]
     for label, r in table.iterrows():
         trained = {c: not math.isnan(r.get(c.replace("lpips", "psnr"), math.nan)) for c, _, _ in heads}
-        cells = [("n/a: no LPIPS weights" if c.startswith("lpips") and math.isnan(r[c]) and trained[c] else _fmt(r[c], f))
+        # a trained row without LPIPS: "n/a", its reason listed under the table ("n/a cells: ...")
+        cells = [("n/a" if c.startswith("lpips") and math.isnan(r[c]) and trained[c] else _fmt(r[c], f))
                  for c, _, f in heads]
         lines.append("| " + " | ".join([str(label), str(int(r["scenes"]))] + cells) + " |")
     return "\n".join(lines)

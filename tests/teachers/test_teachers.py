@@ -23,7 +23,7 @@ def cams():
 def test_listed_and_named_sim(bedroom):
     specs = [s for s, _ in list_teachers()]
     assert {"sim:clean", "sim:relative", "sim:affine-disparity"} <= set(specs)
-    assert all(s.startswith(("sim:", "onnx:", "file:")) for s in specs)
+    assert all(s.startswith(("sim:", "onnx:", "file:", "hf:", "moge:", "  ")) for s in specs)  # "  ": output kinds
     with pytest.raises(PanoreconInputError, match="unknown simulated profile"):
         get_teacher("sim:depth-anything")
     with pytest.raises(PanoreconInputError, match="expected sim:"):
@@ -60,11 +60,7 @@ def test_sky_is_never_valid():
 
 
 def test_sim_needs_truth(real_data, cams):
-<<<<<<< HEAD
-    with pytest.raises(ValueError, match="has no true depth.*with --depth"):
-=======
-    with pytest.raises(PanoreconInputError, match="ground-truth"):
->>>>>>> i21
+    with pytest.raises(PanoreconInputError, match="has no true depth.*with --depth"):
         get_teacher("sim:clean").predict_views(load_scene("hohonet", 128), cams)
 
 
@@ -148,3 +144,27 @@ class TestOnnxTeacher:
             get_teacher(f"onnx:{path}")
         with pytest.raises(PanoreconInputError, match="no such ONNX"):
             get_teacher("onnx:/missing.onnx")
+
+
+def test_fingerprint_follows_the_model_files(tmp_path):
+    """Stage keys use teacher_fingerprint: a changed model folder or file recomputes; sim specs are unchanged."""
+    from panorecon.pipeline import Row
+    from panorecon.teachers import teacher_fingerprint
+
+    assert teacher_fingerprint("sim:relative") == "sim:relative" and teacher_fingerprint(None) is None
+    assert teacher_fingerprint("hf:no-such-org/no-such-model") == "hf:no-such-org/no-such-model"
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "config.json").write_text("{}")
+    spec = f"hf:{tmp_path / 'm'}"
+    first = teacher_fingerprint(spec)
+    row = lambda: Row("bedroom", 128, "fibonacci", spec)  # noqa: E731
+    keys = (row().points_key(), row().train_key())
+    assert first.startswith(spec + "#") and teacher_fingerprint(spec) == first
+    (tmp_path / "m" / "model.safetensors").write_bytes(b"weights")
+    assert teacher_fingerprint(spec) != first
+    assert row().points_key() != keys[0] and row().train_key() != keys[1]
+    npy = tmp_path / "d.npy"
+    np.save(npy, np.ones((4, 8), np.float32))
+    before = teacher_fingerprint(f"file:{npy}?scale=2")
+    np.save(npy, np.ones((8, 16), np.float32))
+    assert teacher_fingerprint(f"file:{npy}?scale=2") != before
