@@ -188,7 +188,7 @@ def cmd_ablate(args) -> int:
     from .evaluation.report import average_table
     from .evaluation.suite import load_suite
 
-    suite = load_suite(args.suite)
+    suite = load_suite(args.suite, getattr(args, "root", None))
     print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
     frame = run_suite(suite, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
                       cache_dir=args.cache, progress=not args.no_progress)
@@ -280,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     ab.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (with --engine dask)")
     ab.add_argument("--cache", default=None, help="stage cache folder shared between suites (default OUT/cache)")
     ab.add_argument("--no-progress", action="store_true")
+    ab.add_argument("--root", default=None, help="dataset root for a suite's {root} (default $PANORECON_DATASET_ROOT)")
     ab.set_defaults(fn=cmd_ablate)
 
     be = sub.add_parser("bench", help="the benchmark CI job: tiny suite + micro-benchmarks against a baseline")

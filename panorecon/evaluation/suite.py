@@ -17,12 +17,18 @@
     columns = ["PSNR", "SSIM", "LPIPS", "Time"]
     rows = [{label = "Our study", values = [42.07, 0.992, 0.020, "8 min 21 s"], match = {source = "fibonacci"}}]
 
-Row keys: scene, width, source, teacher, views, train (false: no training), label, and TrainConfig fields.
+Row keys: scene, width, source, teacher, views, train (false: no training), label, depth, depth_scale,
+depth_kind (a real panorama's true depth, as the CLI's --depth options), and TrainConfig fields.
+``{root}`` in a scene or depth is the dataset root (``load_suite(root=...)``, ``ablate --root``, else
+$PANORECON_DATASET_ROOT); a dataset scene whose key has a ``*`` (``stanford2d3d:{root}/area_3/*``) stands for
+every panorama under the root that matches it.
 """
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import itertools
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,7 +40,8 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-ROW_KEYS = {"scene", "width", "source", "teacher", "views", "train", "label"}
+ROW_KEYS = {"scene", "width", "source", "teacher", "views", "train", "label", "depth", "depth_scale", "depth_kind"}
+ROOT_ENV = "PANORECON_DATASET_ROOT"
 
 
 @dataclass
@@ -53,9 +60,34 @@ def _train_fields() -> set[str]:
     return {f.name for f in dataclasses.fields(TrainConfig)}
 
 
-def load_suite(path) -> Suite:
-    """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file)."""
+def _with_root(value, root: str | None, path: Path):
+    if not isinstance(value, str) or "{root}" not in value:
+        return value
+    if not root:
+        raise PanoreconInputError(f"suite {path}: {value!r} needs the dataset root: give --root DIR or set ${ROOT_ENV}")
+    return value.replace("{root}", str(root))
+
+
+def _expand_scene(scene: str, path: Path) -> list[str]:
+    """A dataset scene with a ``*`` in its key -> the matching panoramas under its root (sorted), else [scene]."""
+    from ..scenes.datasets import is_dataset_name, split_name
+
+    if "*" not in scene or not is_dataset_name(scene):
+        return [scene]
+    ds, root, pattern = split_name(scene)
+    if not root.is_dir():
+        raise PanoreconInputError(f"suite {path}: dataset root {root} of {scene!r} is not a folder")
+    found = [f"{ds.prefix}:{root / k}" for k in ds.keys(root) if fnmatch.fnmatch(k, pattern)]
+    if not found:
+        raise PanoreconInputError(f"suite {path}: no {ds.prefix} panorama under {root} matches {scene!r}")
+    return found
+
+
+def load_suite(path, root: str | None = None) -> Suite:
+    """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file).
+    ``root``: the dataset root for ``{root}`` (default $PANORECON_DATASET_ROOT)."""
     path = Path(path)
+    root = root or os.environ.get(ROOT_ENV)
     if not path.is_file():
         raise PanoreconInputError(f"suite {path}: no such file (the shipped suites are in eval/suites/)")
     try:
@@ -83,10 +115,16 @@ def load_suite(path) -> Suite:
             train_cfg = {k: v for k, v in spec.items() if k in train_fields}
             label = spec.get("label") or " / ".join(str(spec.get(c, "")) for c in row_columns)
             extra = {c: spec.get(c) for c in row_columns if c not in ROW_KEYS}
-            rows.append(Row(scene=spec["scene"], width=int(spec.get("width", 512)), source=spec["source"],
-                            teacher=spec.get("teacher"), views=spec.get("views"),
-                            train=train_cfg if spec.get("train", True) else None, label=label,
-                            extra={**extra, **{k: spec[k] for k in ("strategy", "labels", "iters", "res") if k in spec}}))
+            depth = _with_root(spec.get("depth"), root, path)
+            if depth is None and ("depth_scale" in spec or "depth_kind" in spec):
+                raise PanoreconInputError(f"suite {path}: depth_scale / depth_kind without a depth file")
+            depth = (depth, spec.get("depth_scale"), spec.get("depth_kind", "distance")) if depth else None
+            for scene in _expand_scene(_with_root(spec["scene"], root, path), path):
+                rows.append(Row(scene=scene, width=int(spec.get("width", 512)), source=spec["source"],
+                                teacher=spec.get("teacher"), views=spec.get("views"),
+                                train=train_cfg if spec.get("train", True) else None, label=label, depth=depth,
+                                extra={**extra, **{k: spec[k] for k in ("strategy", "labels", "iters", "res")
+                                                   if k in spec}}))
     if not rows:
         raise PanoreconInputError(f"suite {path}: the grid is empty")
     return Suite(path.stem, data.get("title", path.stem), rows, row_columns, data.get("paper", {}), path)
