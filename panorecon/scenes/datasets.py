@@ -185,3 +185,16 @@ def list_root(root: Path) -> list[tuple[str, str]]:
     if not root.is_dir():
         raise PanoreconInputError(f"--root {root}: not a folder")
     return [(f"{ds.prefix}:{root / k}", ds.description) for ds in DATASETS.values() for k in ds.keys(root)]
+
+
+def heldout_panoramas(scene) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The other posed panoramas of a dataset scene's space at the scene's size: [(offset [3] metres from the
+    scene's centre, rgb [H, W, 3] uint8, ray distance [H, W] float32 metres, NaN unknown)]; [] for other scenes."""
+    if scene.meta.get("position") is None or not scene.meta.get("others"):
+        return []
+    here = np.asarray(scene.meta["position"], np.float64)
+    out = []
+    for name in scene.meta["others"]:
+        other = load_dataset_scene(name, scene.width)
+        out.append((np.asarray(other.meta["position"]) - here, other.rgb, other.distance))
+    return out
