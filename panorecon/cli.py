@@ -138,7 +138,8 @@ def _initial_cloud(args, scene, cloud_path, report_path):
     pc.save_ply(cloud_path)
     if getattr(args, "distance_out", None):
         if pc.meta.get("erp_distance") is None:
-            raise PanoreconInputError(f"--distance-out {args.distance_out}: source {args.source!r} gives no ERP distance")
+            raise PanoreconInputError(f"--distance-out {args.distance_out}: source {args.source!r} "
+                                      "gives no ERP distance")
         save_npy(args.distance_out, pc.meta["erp_distance"])
     if report_path:
         write_json(report_path, report)
@@ -316,7 +317,8 @@ DEPTH_OPTIONS = ("depth", "depth_scale", "depth_kind")
 def _add_depth_options(parser: argparse.ArgumentParser) -> None:
     """--depth / --depth-scale / --depth-kind: a real panorama's true depth (see panorecon.io.depth)."""
     g = parser.add_argument_group("true depth of a real panorama")
-    g.add_argument("--depth", default=None, help="true depth file (16-bit .png, .exr, .npy) of the same size as the image")
+    g.add_argument("--depth", default=None,
+                   help="true depth file (16-bit .png, .exr, .npy) of the same pixel size as the image")
     g.add_argument("--depth-scale", type=float, default=None,
                    help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)")
     g.add_argument("--depth-kind", choices=("distance", "z"), default="distance",
