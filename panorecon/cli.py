@@ -176,7 +176,8 @@ def cmd_train(args) -> int:
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
     m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress)
     held = m["held-out"]
-    held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
+    held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) and isinstance(held["psnr"], float) else (
+        held["psnr"] if isinstance(held, dict) else held)
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
           f"{m['pseudo-label']['ssim']:.3f}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
           f"{m['seconds']['total']:.1f} s; peak {m['peak_rss_mb']:.0f} MB -> {args.out}")
