@@ -162,7 +162,8 @@ def _initial_cloud(args, scene, cloud_path, report_path):
     pc.save_ply(cloud_path)
     if getattr(args, "distance_out", None):
         if pc.meta.get("erp_distance") is None:
-            raise PanoreconInputError(f"--distance-out {args.distance_out}: source {args.source!r} gives no ERP distance")
+            raise PanoreconInputError(f"--distance-out {args.distance_out}: source {args.source!r} "
+                                      "gives no ERP distance")
         save_npy(args.distance_out, pc.meta["erp_distance"])
     if report_path:
         write_json(report_path, report)
@@ -208,7 +209,8 @@ def cmd_train(args) -> int:
               inputs={"source": args.source, "teacher": args.teacher, "views": args.views, "depth": args.depth},
               device=device)
     held = m["held-out"]
-    held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) else held
+    held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) and isinstance(held["psnr"], float) else (
+        held["psnr"] if isinstance(held, dict) else held)
     lp = m["pseudo-label"]["lpips"]
     lp_txt = f"{lp:.3f}" if isinstance(lp, float) else lp
     print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
@@ -243,7 +245,7 @@ def cmd_ablate(args) -> int:
     from .device import resolve_device
 
     resolve_device(args.device)
-    suite = load_suite(args.suite)
+    suite = load_suite(args.suite, args.root)
     print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
     frame = run_suite(suite, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
                       cache_dir=args.cache, progress=not args.no_progress, device=args.device)
@@ -368,6 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     ab.add_argument("--cache", default=None, type=T.out_dir,
                     help="stage cache folder shared between suites (default OUT/cache)")
     ab.add_argument("--no-progress", action="store_true")
+    ab.add_argument("--root", default=None, help="dataset root for a suite's {root} (default $PANORECON_DATASET_ROOT)")
     _add_device(ab)
     ab.set_defaults(fn=cmd_ablate)
 
@@ -406,7 +409,7 @@ def _add_depth_options(parser: argparse.ArgumentParser) -> None:
     """--depth / --depth-scale / --depth-kind: a real panorama's true depth (see panorecon.io.depth)."""
     g = parser.add_argument_group("true depth of a real panorama")
     g.add_argument("--depth", default=None,
-                   help="true depth file (16-bit .png, .exr, .npy) of the same size as the image")
+                   help="true depth file (16-bit .png, .exr, .npy) of the same pixel size as the image")
     g.add_argument("--depth-scale", type=T.float_in(1e-9, 1e9, "depth scale"), default=None,
                    help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)")
     g.add_argument("--depth-kind", choices=("distance", "z"), default="distance",

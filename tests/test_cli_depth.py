@@ -56,7 +56,8 @@ def test_npy_default_scale_and_gt_cloud(tmp_path, pano, capsys):
                  "--out", str(tmp_path / "gt.ply")]) == 0
     out = capsys.readouterr().out
     assert "not ground truth" not in out and f"{(WIDTH // 2) * WIDTH} points" in out
-    assert main(["render", str(pano / "pano.png"), "--depth", str(pano / "depth_mm.png"), "--out", str(tmp_path / "r")]) == 0
+    assert main(["render", str(pano / "pano.png"), "--depth", str(pano / "depth_mm.png"),
+                 "--out", str(tmp_path / "r")]) == 0
     np.testing.assert_allclose(np.load(tmp_path / "r" / "distance.npy"), np.load(pano / "distance.npy"), atol=5e-4)
 
 

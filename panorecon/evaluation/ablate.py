@@ -151,6 +151,7 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
            "abs_rel": _num(depth.get("abs_rel")), "rmse": _num(depth.get("rmse")), "delta1": _num(depth.get("delta1")),
            "teacher_view_abs_rel": _num(rep.get("teacher_per_view_abs_rel_median")),
            "points": points.get("count"), "chamfer": _num(points.get("chamfer")),
+           "fscore": _num(points.get("fscore")),
            "accuracy": _num(points.get("accuracy")), "completeness": _num(points.get("completeness")),
            "sec_points": pts["seconds"], "peak_mb_points": pts["peak_rss_mb"],
            "view_components": rep.get("view_components"), "warning": "; ".join(rep.get("warnings", []))}

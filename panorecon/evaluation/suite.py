@@ -17,7 +17,11 @@
     columns = ["PSNR", "SSIM", "LPIPS", "Time"]
     rows = [{label = "Our study", values = [42.07, 0.992, 0.020, "8 min 21 s"], match = {source = "fibonacci"}}]
 
-Row keys: scene, width, source, teacher, views, train (false: no training), label, and TrainConfig fields.
+Row keys: scene, width, source, teacher, views, train (false: no training), label, depth, depth_scale,
+depth_kind (a real panorama's true depth, as the CLI's --depth options), and TrainConfig fields.
+``{root}`` in a scene or depth is the dataset root (``load_suite(root=...)``, ``ablate --root``, else
+$PANORECON_DATASET_ROOT); a dataset scene whose key has a ``*`` (``stanford2d3d:{root}/area_3/*``) stands for
+every panorama under the root that matches it.
 
 The file is checked against a typed schema before anything runs: unknown tables and keys are errors that
 name the closest valid one, every value has its key's type and range, and ``resolve_names`` checks every
@@ -27,7 +31,9 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import fnmatch
 import itertools
+import os
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,14 +47,15 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-ROW_KEYS = {"scene", "width", "source", "teacher", "views", "train", "label"}
+ROW_KEYS = {"scene", "width", "source", "teacher", "views", "train", "label", "depth", "depth_scale", "depth_kind"}
+ROOT_ENV = "PANORECON_DATASET_ROOT"
 TOP_KEYS = {"title": str, "rows": list, "defaults": dict, "grid": dict, "variants": list, "paper": dict}
 PAPER_KEYS = {"caption": str, "columns": list, "rows": list}
 PAPER_ROW_KEYS = {"label": str, "values": list, "match": dict}
 # ranges of row values (ints not named here must be >= 0, floats finite and >= 0)
 RANGES = {"width": T.ERP_WIDTH, "views": T.VIEWS, "iters": T.ITERS, "res": T.LABEL_RES, "labels": T.LABELS,
           "seed": T.SEED, "sh_degree": T.int_in(0, 3, "SH degree"), "sh_increase_every": T.int_in(1, None),
-          "fov_deg": T.float_in(1.0, 170.0, "field of view")}
+          "fov_deg": T.float_in(1.0, 170.0, "field of view"), "depth_scale": T.float_in(1e-9, 1e9, "depth scale")}
 
 
 @dataclass
@@ -73,7 +80,7 @@ def row_schema() -> dict[str, type]:
 
     hints = typing.get_type_hints(TrainConfig)
     return {"scene": str, "width": int, "source": str, "teacher": str, "views": int, "train": bool, "label": str,
-            **{f.name: hints[f.name] for f in dataclasses.fields(TrainConfig)}}
+            "depth": str, "depth_scale": float, "depth_kind": str, **{f.name: hints[f.name] for f in dataclasses.fields(TrainConfig)}}
 
 
 def _choices() -> dict[str, tuple[str, ...]]:
@@ -81,7 +88,8 @@ def _choices() -> dict[str, tuple[str, ...]]:
     from ..splat.rasterize import BACKENDS
     from ..splat.strategy import STRATEGIES
 
-    return {"strategy": tuple(STRATEGIES), "backend": BACKENDS, "layout": LAYOUT_NAMES}
+    return {"strategy": tuple(STRATEGIES), "backend": BACKENDS, "layout": LAYOUT_NAMES,
+            "depth_kind": ("distance", "z")}
 
 
 def _unknown(path: Path, where: str, key: str, valid) -> PanoreconInputError:
@@ -158,9 +166,34 @@ def _check_top(path: Path, data: dict) -> None:
                                           f"{_type_name(PAPER_ROW_KEYS[k])}, got {v!r}")
 
 
-def load_suite(path) -> Suite:
-    """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file)."""
+def _with_root(value, root: str | None, path: Path):
+    if not isinstance(value, str) or "{root}" not in value:
+        return value
+    if not root:
+        raise PanoreconInputError(f"suite {path}: {value!r} needs the dataset root: give --root DIR or set ${ROOT_ENV}")
+    return value.replace("{root}", str(root))
+
+
+def _expand_scene(scene: str, path: Path) -> list[str]:
+    """A dataset scene with a ``*`` in its key -> the matching panoramas under its root (sorted), else [scene]."""
+    from ..scenes.datasets import is_dataset_name, split_name
+
+    if "*" not in scene or not is_dataset_name(scene):
+        return [scene]
+    ds, root, pattern = split_name(scene)
+    if not root.is_dir():
+        raise PanoreconInputError(f"suite {path}: dataset root {root} of {scene!r} is not a folder")
+    found = [f"{ds.prefix}:{root / k}" for k in ds.keys(root) if fnmatch.fnmatch(k, pattern)]
+    if not found:
+        raise PanoreconInputError(f"suite {path}: no {ds.prefix} panorama under {root} matches {scene!r}")
+    return found
+
+
+def load_suite(path, root: str | None = None) -> Suite:
+    """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file).
+    ``root``: the dataset root for ``{root}`` (default $PANORECON_DATASET_ROOT)."""
     path = Path(path)
+    root = root or os.environ.get(ROOT_ENV)
     if not path.is_file():
         raise PanoreconInputError(f"suite {path}: no such file (the shipped suites are in eval/suites/)")
     try:
@@ -189,10 +222,16 @@ def load_suite(path) -> Suite:
             train_cfg = {k: v for k, v in spec.items() if k in train_fields}
             label = spec.get("label") or " / ".join(str(spec.get(c, "")) for c in row_columns)
             extra = {c: spec.get(c) for c in row_columns if c not in ROW_KEYS}
-            rows.append(Row(scene=spec["scene"], width=int(spec.get("width", 512)), source=spec["source"],
-                            teacher=spec.get("teacher"), views=spec.get("views"),
-                            train=train_cfg if spec.get("train", True) else None, label=label,
-                            extra={**extra, **{k: spec[k] for k in ("strategy", "labels", "iters", "res") if k in spec}}))
+            depth = _with_root(spec.get("depth"), root, path)
+            if depth is None and ("depth_scale" in spec or "depth_kind" in spec):
+                raise PanoreconInputError(f"suite {path}: depth_scale / depth_kind without a depth file")
+            depth = (depth, spec.get("depth_scale"), spec.get("depth_kind", "distance")) if depth else None
+            for scene in _expand_scene(_with_root(spec["scene"], root, path), path):
+                rows.append(Row(scene=scene, width=int(spec.get("width", 512)), source=spec["source"],
+                                teacher=spec.get("teacher"), views=spec.get("views"),
+                                train=train_cfg if spec.get("train", True) else None, label=label, depth=depth,
+                                extra={**extra, **{k: spec[k] for k in ("strategy", "labels", "iters", "res")
+                                                   if k in spec}}))
     if not rows:
         raise PanoreconInputError(f"suite {path}: the grid is empty")
     return Suite(path.stem, data.get("title", path.stem), rows, row_columns, data.get("paper", {}), path)
@@ -207,6 +246,7 @@ def resolve_names(suite: Suite) -> None:
 
     from ..pipeline.stages import PROMPT_PREFIX, TEXT2PANO_MODEL_ENV
     from ..scenes import list_scenes
+    from ..scenes.datasets import is_dataset_name
     from ..sources import get_source
     from ..teachers import get_teacher
 
@@ -220,7 +260,8 @@ def resolve_names(suite: Suite) -> None:
                 if not os.environ.get(TEXT2PANO_MODEL_ENV):
                     raise PanoreconInputError(f"{what}: scene {row.scene!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} "
                                               "to a local diffusers model folder")
-            elif not Path(row.scene).is_file():
+            elif not (Path(row.scene).is_file() or Path(row.scene.removeprefix("rendered:")).is_dir()
+                      or is_dataset_name(row.scene)):
                 close = difflib.get_close_matches(row.scene, sorted(scenes), n=1, cutoff=0.5)
                 raise PanoreconInputError(f"{what}: unknown scene {row.scene!r}"
                                           + (f"; did you mean {close[0]!r}?" if close else

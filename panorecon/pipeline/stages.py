@@ -38,16 +38,19 @@ class Row:
     train: dict | None = None
     label: str = ""
     extra: dict = field(default_factory=dict, compare=False)  # suite columns carried into results (not keyed)
+    depth: tuple | None = None  # (path, metres per unit or None, "distance" | "z"): a real panorama's true depth
+
+    def _scene_params(self) -> dict:
+        return {"scene": self.scene, "width": self.width, **({"depth": list(self.depth)} if self.depth else {})}
 
     def points_key(self) -> str:
-        return stage_key("points", {"scene": self.scene, "width": self.width, "source": self.source,
+        return stage_key("points", {**self._scene_params(), "source": self.source,
                                     "teacher": teacher_fingerprint(self._teacher_for_points()), "views": self.views},
                          code=POINTS_CODE)
 
     def train_key(self) -> str:
-        return stage_key("train", {"scene": self.scene, "width": self.width,
-                                   "teacher": teacher_fingerprint(self.teacher), "config": self.train_config_dict()},
-                         (self.points_key(),), TRAIN_CODE)
+        return stage_key("train", {**self._scene_params(), "teacher": teacher_fingerprint(self.teacher),
+                                   "config": self.train_config_dict()}, (self.points_key(),), TRAIN_CODE)
 
     def train_config_dict(self) -> dict:
         from ..splat.trainer import TrainConfig
@@ -64,15 +67,20 @@ PROMPT_PREFIX = "prompt:"
 TEXT2PANO_MODEL_ENV = "PANORECON_TEXT2PANO_MODEL"
 
 
-def load_row_scene(name: str, width: int, cache: StageCache):
-    """A registered scene or image path, or ``prompt:<preset or text>``: a panorama generated once by
+def load_row_scene(name: str, width: int, cache: StageCache, depth: tuple | None = None):
+    """A registered scene, dataset panorama or image path (with ``depth`` = ``Row.depth``, its true depth), or
+    ``prompt:<preset or text>``: a panorama generated once by
     ``text2pano`` at the row's width (model from $PANORECON_TEXT2PANO_MODEL, steps from
     $PANORECON_TEXT2PANO_STEPS, default 50; cached by prompt, model, seed and settings under the cache's
     text2pano/ folder) and then loaded like any ERP image. Only prompt scenes import the diffusion stack."""
     from ..scenes import load_scene
 
     if not name.startswith(PROMPT_PREFIX):
-        return load_scene(name, width)
+        from pathlib import Path
+
+        from ..scenes.real import DepthSpec
+
+        return load_scene(name, width, DepthSpec(Path(depth[0]), depth[1], depth[2]) if depth else None)
     import os
 
     from ..io import PanoreconInputError
@@ -160,7 +168,7 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
     from ..sources import run_source
 
     t = time.perf_counter()
-    scene = load_row_scene(row.scene, row.width, cache)
+    scene = load_row_scene(row.scene, row.width, cache, row.depth)
     scene_s = time.perf_counter() - t
     try:
         pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views, fusion_config_for(device))
@@ -202,7 +210,7 @@ def _compute_train(cache: StageCache, row: Row, key: str, points: dict, progress
     from ..geometry import PointCloud
     from ..splat.trainer import TrainConfig, train
 
-    scene = load_row_scene(row.scene, row.width, cache)
+    scene = load_row_scene(row.scene, row.width, cache, row.depth)
     cloud_path = cache.folder("points", points["key"]) / "cloud.ply"
     cloud = PointCloud.load_ply(cloud_path)
     inputs = {"scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,

@@ -2,5 +2,5 @@
 from .base import ErpRender, Scene, ViewRender, World
 from .registry import DEFAULT_SCENE, SceneSpec, list_scenes, load_scene, register_scene, scene_from_args
 
-__all__ = ["Scene", "World", "ErpRender", "ViewRender", "SceneSpec", "DEFAULT_SCENE", "list_scenes", "load_scene", "register_scene",
-           "scene_from_args"]
+__all__ = ["Scene", "World", "ErpRender", "ViewRender", "SceneSpec", "DEFAULT_SCENE", "list_scenes", "load_scene",
+           "register_scene", "scene_from_args"]

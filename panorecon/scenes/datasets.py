@@ -3,11 +3,13 @@
 Each adapter knows its dataset's on-disk layout and depth encoding from the dataset's own documentation
 (cited beside it). No dataset file ships with panorecon; see the README for where each comes from and its licence.
 
-| name | layout under ``<root>`` | depth | pose |
-|---|---|---|---|
-| ``stanford2d3d:<root>/<area>/<pano id>`` | ``<area>/pano/{rgb,depth,pose}/<pano id>_frame_equirectangular_domain_{rgb.png,depth.png,pose.json}`` | 16-bit PNG, 1/512 m, ray distance, 65535 missing | ``camera_location`` (m) |
-| ``structured3d:<root>/<scene>/<room>`` | ``<scene>/2D_rendering/<room>/panorama/{full/rgb_rawlight.png, full/depth.png, camera_xyz.txt}`` | 16-bit PNG, mm, ray distance | ``camera_xyz.txt`` (mm) |
-| ``matterport3d:<root>/<scene>/<pano>`` | ``<scene>/pano_color/<pano>.jpg``, ``<scene>/pano_depth/<pano>.png`` | 16-bit PNG, 1/4000 m, ray distance | none |
+- ``stanford2d3d:<root>/<area>/<pano id>``: ``<area>/pano/{rgb,depth,pose}/<pano id>_frame_equirectangular_domain_``
+  ``{rgb.png,depth.png,pose.json}``; depth 16-bit PNG, 1/512 m, ray distance, 65535 missing; pose
+  ``camera_location`` (m).
+- ``structured3d:<root>/<scene>/<room>``: ``<scene>/2D_rendering/<room>/panorama/{full/rgb_rawlight.png,
+  full/depth.png, camera_xyz.txt}``; depth 16-bit PNG, mm, ray distance; pose ``camera_xyz.txt`` (mm).
+- ``matterport3d:<root>/<scene>/<pano>``: ``<scene>/pano_color/<pano>.jpg``, ``<scene>/pano_depth/<pano>.png``;
+  depth 16-bit PNG, 1/4000 m, ray distance; no pose.
 
 Positions are metres in the dataset's world frame. The panoramas of one space are taken to share the world's
 orientation (only their centres differ): Structured3D renders its panoramas so; for Stanford2D3D it is an
@@ -123,7 +125,8 @@ def _mp3d_locate(root: Path, key: str) -> Panorama:
     rgb = next((p for p in (root / scene / "pano_color" / f"{pano}{e}" for e in (".jpg", ".png")) if p.is_file()),
                None)
     if rgb is None:
-        raise PanoreconInputError(f"{root / scene / 'pano_color' / pano}.jpg: no such file (Matterport3D panorama image)")
+        raise PanoreconInputError(f"{root / scene / 'pano_color' / pano}.jpg: no such file "
+                                  "(Matterport3D panorama image)")
     depth = _need(root / scene / "pano_depth" / f"{pano}.png", "Matterport3D panorama depth")
     return Panorama(f"matterport3d:{key}", rgb, DepthSpec(depth, 1 / 4000, "distance", source="Matterport3D, 1/4000 m"),
                     None)
@@ -185,3 +188,16 @@ def list_root(root: Path) -> list[tuple[str, str]]:
     if not root.is_dir():
         raise PanoreconInputError(f"--root {root}: not a folder")
     return [(f"{ds.prefix}:{root / k}", ds.description) for ds in DATASETS.values() for k in ds.keys(root)]
+
+
+def heldout_panoramas(scene) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The other posed panoramas of a dataset scene's space at the scene's size: [(offset [3] metres from the
+    scene's centre, rgb [H, W, 3] uint8, ray distance [H, W] float32 metres, NaN unknown)]; [] for other scenes."""
+    if scene.meta.get("position") is None or not scene.meta.get("others"):
+        return []
+    here = np.asarray(scene.meta["position"], np.float64)
+    out = []
+    for name in scene.meta["others"]:
+        other = load_dataset_scene(name, scene.width)
+        out.append((np.asarray(other.meta["position"]) - here, other.rgb, other.distance))
+    return out

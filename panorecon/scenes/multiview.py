@@ -37,7 +37,8 @@ def render_positions(scene: Scene, k: int, layout: str = "ring", radius_fraction
     uint8, ray distance [H, W] float32 metres with inf for sky).
     """
     if scene.world is None:
-        raise PanoreconInputError(f"scene {scene.name!r} has no world to render new positions from (synthetic scenes only)")
+        raise PanoreconInputError(f"n/a: scene {scene.name!r} has no world to render new positions from "
+                                  "(synthetic scenes only)")
     if not 0.0 <= radius_fraction <= 1.0:
         raise PanoreconInputError(f"radius_fraction={radius_fraction}: expected a value in [0, 1]")
     radius = radius_fraction * scene.world.free_space_radius()

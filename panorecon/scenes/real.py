@@ -67,8 +67,8 @@ def with_depth(scene: Scene, depth: DepthSpec) -> Scene:
                                   f"{scene.meta.get('image', scene.name)} is {hw[1]}x{hw[0]}; expected the same size")
     scene.distance = _resize(d, scene.width, cv2.INTER_NEAREST)
     scene.distance_kind = "truth" if depth.truth else "predicted"
-    scene.meta.update(depth=str(depth.path), depth_kind=depth.kind,
-                      depth_scale=depth.scale, depth_from=depth.source or ("true depth" if depth.truth else "predicted"))
+    scene.meta.update(depth=str(depth.path), depth_kind=depth.kind, depth_scale=depth.scale,
+                      depth_from=depth.source or ("true depth" if depth.truth else "predicted"))
     return scene
 
 

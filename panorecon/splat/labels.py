@@ -1,4 +1,5 @@
-"""Dense perspective pseudo-labels from a panorama (paper §2.3) and, on synthetic scenes, held-out true views.
+"""Dense perspective pseudo-labels from a panorama (paper §2.3) and held-out true views: renders of a synthetic
+scene's world, or the other real panoramas of the same space (dataset scenes with poses).
 
 Pseudo-labels: views at the panorama centre looking along a dense layout (Fibonacci by default; Table 5
 uses 120-360), their RGB resampled from the ERP and their depth from a teacher. Held-out views: true
@@ -11,17 +12,19 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..geometry import PinholeCamera, centred_camera, erp_to_perspective, intrinsics_from_fov, look_at_rotation, make_layout, viewmat_from_pose
+from ..geometry import (PinholeCamera, centred_camera, erp_to_perspective, intrinsics_from_fov, look_at_rotation,
+                        make_layout, sample_erp, viewmat_from_pose)
 
 
 @dataclass
 class LabelView:
     """camera; rgb [h, w, 3] float32 in [0, 1]; depth [h, w] float32 z-depth (metres or the teacher's units,
-    NaN unknown) or None."""
+    NaN unknown) or None; mask [h, w] bool: the pixels a score may use (None: all)."""
 
     camera: PinholeCamera
     rgb: np.ndarray
     depth: np.ndarray | None = None
+    mask: np.ndarray | None = None
 
 
 def make_pseudo_labels(scene, n_views: int, size: int, fov_deg: float = 60.0, layout: str = "fibonacci",
@@ -56,4 +59,41 @@ def make_heldout_views(scene, n_views: int, size: int, fov_deg: float = 60.0, se
         cam = PinholeCamera(K, viewmat_from_pose(look_at_rotation(forward), p), size, size)
         r = scene.world.render_view(cam)
         views.append(LabelView(cam, r.rgb.astype(np.float32) / 255.0, np.where(r.sky, np.nan, r.depth_z).astype(np.float32)))
+    return views
+
+
+COVISIBLE_REL_TOL = 0.05
+
+
+def make_panorama_heldout_views(scene, panoramas, n_views: int, size: int, fov_deg: float = 60.0,
+                                seed: int = 0) -> list[LabelView]:
+    """Held-out views on a real scene from its other panoramas (true images taken elsewhere in the same space).
+
+    ``panoramas``: [(offset [3] metres of that panorama's centre from the scene's, rgb [H, W, 3] uint8, ray
+    distance [H, W] float32 metres, NaN unknown)], all in the scene's orientation. View i stands at panorama
+    i mod K looking in a random direction within 30 degrees of the horizon; its rgb and z-depth are sampled
+    from that panorama. Its mask keeps the pixels the training panorama sees too: the pixel's true 3D point
+    X (from the held-out panorama's depth) must be valid there and lie, seen from the scene's centre, within
+    5 % of the scene's own true distance along X's direction (otherwise it is occluded from, or unknown to,
+    the panorama the Gaussians were trained on). The scene needs a true distance."""
+    if scene.distance is None or not panoramas:
+        raise ValueError(f"scene {scene.name!r}: held-out panoramas need the scene's true depth and other panoramas")
+    rng = np.random.default_rng(seed)
+    K = intrinsics_from_fov(size, size, fov_deg)
+    views = []
+    for i in range(n_views):
+        offset, rgb, dist = panoramas[i % len(panoramas)]
+        az, el = rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi / 6, np.pi / 6)
+        forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        cam = PinholeCamera(K, viewmat_from_pose(look_at_rotation(forward), np.asarray(offset, float)), size, size)
+        rays = cam.world_rays()
+        d = sample_erp(dist.astype(np.float32), rays, "nearest").astype(np.float64)
+        x = np.asarray(offset, float) + rays * d[..., None]
+        r = np.linalg.norm(x, axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            seen = sample_erp(scene.distance.astype(np.float32), x / r[..., None], "nearest").astype(np.float64)
+            mask = np.isfinite(d) & np.isfinite(seen) & (np.abs(seen - r) <= COVISIBLE_REL_TOL * r)
+        img = sample_erp(rgb, rays, "linear").astype(np.float32) / 255.0
+        z = np.where(mask, d / cam.z_to_distance_factor(), np.nan).astype(np.float32)
+        views.append(LabelView(cam, img, z, mask))
     return views

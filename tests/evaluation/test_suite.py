@@ -54,6 +54,8 @@ def test_shipped_suites_load():
     suites = sorted((Path(__file__).parents[2] / "eval" / "suites").glob("*.toml"))
     assert {p.stem for p in suites} >= {"quick", "bench", "table2", "table4", "table5", "table6", "table7", "real"}
     for p in suites:
+        if "{root}" in p.read_text():  # dataset suites: tests/evaluation/test_suite_datasets.py
+            continue
         assert load_suite(p).rows
 
 

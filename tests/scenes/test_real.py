@@ -53,3 +53,11 @@ def test_unknown_scene_or_missing_file(bad):
 def test_bad_width(w):
     with pytest.raises(PanoreconInputError, match="--width"):
         load_scene("py360-demo", w)
+
+
+def test_a_depth_file_given_for_a_builtin_real_scene_is_truth(real_data):
+    from panorecon.scenes.real import DepthSpec
+
+    s = load_scene("hohonet", 128, DepthSpec(real_data / "hohonet_pano.pred_depth_mm.png", 1e-3))
+    assert s.distance_kind == "truth" and s.has_ground_truth and s.distance.shape == (64, 128)
+    assert load_scene("hohonet", 128).distance_kind == "predicted"
