@@ -84,7 +84,8 @@ def test_broken_inputs_are_one_line_exit_2(tmp_path, pano, capsys, case, needle)
         scene = "bedroom"
         depth = pano / "depth_mm.png"
     argv = ["render", scene, "--out", str(tmp_path / "o")]
-    argv += {"scale-alone": ["--depth-scale", "1"], "kind-alone": ["--depth-kind", "z"]}.get(case, ["--depth", str(depth)])
+    alone = {"scale-alone": ["--depth-scale", "1"], "kind-alone": ["--depth-kind", "z"]}
+    argv += alone.get(case, ["--depth", str(depth)])
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert needle in err and err.count("\n") == 1
