@@ -412,7 +412,7 @@ def _add_depth_options(parser: argparse.ArgumentParser) -> None:
                    help="true depth file (16-bit .png, .exr, .npy) of the same pixel size as the image")
     g.add_argument("--depth-scale", type=T.float_in(1e-9, 1e9, "depth scale"), default=None,
                    help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)")
-    g.add_argument("--depth-kind", choices=("distance", "z"), default="distance",
+    g.add_argument("--depth-kind", choices=("distance", "z"), default=None,
                    help="distance along the ray (default) or cube-face z-depth")
 
 

@@ -67,7 +67,8 @@ def test_npy_default_scale_and_gt_cloud(tmp_path, pano, capsys):
     ("8bit", "8-bit; expected 16-bit"),
     ("exr-scene", "is read as a depth file"),
     ("synthetic", "is synthetic and already has its true depth"),
-    ("scale-alone", "--depth-scale without --depth"),
+    ("scale-alone", "--depth-scale/--depth-kind without --depth"),
+    ("kind-alone", "--depth-scale/--depth-kind without --depth"),
 ])
 def test_broken_inputs_are_one_line_exit_2(tmp_path, pano, capsys, case, needle):
     scene, depth = str(pano / "pano.png"), tmp_path / "d.png"
@@ -83,7 +84,8 @@ def test_broken_inputs_are_one_line_exit_2(tmp_path, pano, capsys, case, needle)
         scene = "bedroom"
         depth = pano / "depth_mm.png"
     argv = ["render", scene, "--out", str(tmp_path / "o")]
-    argv += ["--depth-scale", "1"] if case == "scale-alone" else ["--depth", str(depth)]
+    alone = {"scale-alone": ["--depth-scale", "1"], "kind-alone": ["--depth-kind", "z"]}
+    argv += alone.get(case, ["--depth", str(depth)])
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert needle in err and err.count("\n") == 1
@@ -100,3 +102,13 @@ def test_scenes_list_root(tmp_path, pano, capsys):
     out = capsys.readouterr().out
     assert f"structured3d:{tmp_path}/scene_00000/485140" in out and "1 panoramas" in out
     assert main(["scenes", "list", "--root", str(tmp_path / "nope")]) == 2
+
+
+def test_depth_kind_z(tmp_path, pano):
+    from panorecon.io.depth import erp_z_to_distance_factor
+
+    d = np.load(pano / "distance.npy")
+    np.save(tmp_path / "z.npy", d / erp_z_to_distance_factor(*d.shape))
+    assert main(["render", str(pano / "pano.png"), "--depth", str(tmp_path / "z.npy"), "--depth-kind", "z",
+                 "--out", str(tmp_path / "r")]) == 0
+    np.testing.assert_allclose(np.load(tmp_path / "r" / "distance.npy"), d, rtol=1e-6)

@@ -97,7 +97,8 @@ def scene_from_args(args) -> Scene:
     if getattr(args, "depth", None):
         from .real import DepthSpec
 
-        depth = DepthSpec(Path(args.depth), getattr(args, "depth_scale", None), getattr(args, "depth_kind", "distance"))
-    elif getattr(args, "depth_scale", None) is not None:
-        raise PanoreconInputError("--depth-scale without --depth: expected a depth file to scale")
+        depth = DepthSpec(Path(args.depth), getattr(args, "depth_scale", None),
+                          getattr(args, "depth_kind", None) or "distance")
+    elif getattr(args, "depth_scale", None) is not None or getattr(args, "depth_kind", None) is not None:
+        raise PanoreconInputError("--depth-scale/--depth-kind without --depth: expected a depth file to read")
     return load_scene(args.scene, getattr(args, "width", None), depth)
