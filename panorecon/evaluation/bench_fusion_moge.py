@@ -1,0 +1,176 @@
+"""Fusion on equal inputs: MoGe's own ``merge_panorama_depth`` (the ``dlr-moge`` package) and panorecon's
+``fuse_views`` fed the same views.
+
+A scene's true ERP ray distance is split by MoGe's own ``split_panorama_image`` (bilinear) into MoGe's 12
+icosahedron-vertex views of 90 degrees, 512 px; each condition perturbs every view the same way for both
+methods: ``exact`` (as split), ``scale`` (times a random per-view scale in [0.7, 1.4]), ``scale+noise``
+(and times 1 + 0.02 N(0, 1) per view pixel). Both outputs are compared with the truth at the ERP size
+(AbsRel after median alignment). ``fibonacci-own`` is panorecon on its own default views (20 Fibonacci
+views, ``default_view_size``) split the same way, under ``scale+noise``.
+
+    python -m panorecon.evaluation.bench_fusion_moge [--widths 1024 2048] [--out result.json]
+
+Needs the ``moge`` extra (``dlr-moge`` and ``dlr-utils3d``; see scripts/setup.sh). Every run is a fresh
+process: ``peak_rss_mb`` is that run's peak (imports, truth and views included, ``rss_before_mb`` of it
+before the merge started). MoGe's ERP has its seam at panorecon's lon 0 (columns rolled by W/2); the
+benchmark rolls its input and output accordingly.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .environment import emit, environment, in_fresh_process
+
+CONDITIONS = ("exact", "scale", "scale+noise")
+METHODS = ("moge", "fuse_views")
+NOISE = 0.02
+VIEW_SIZE = 512
+
+
+def require_moge():
+    """MoGe's panorama module, or PanoreconInputError saying what to install."""
+    try:
+        from moge.utils import panorama
+    except ImportError as e:
+        from ..io import PanoreconInputError
+
+        raise PanoreconInputError(f"MoGe's merge is not installed ({e}); install the moge extra: "
+                                  "pip install --no-deps dlr-moge==2.0.0 dlr-utils3d==1.3") from None
+    return panorama
+
+
+def panorecon_views_as_moge(cameras):
+    """(extrinsics [V, 4, 4], normalised intrinsics list) for panorecon cameras (same OpenCV axes)."""
+    ext = np.stack([c.viewmat for c in cameras]).astype(np.float32)
+    ints = [c.K / np.array([[c.width], [c.height], [1.0]]) for c in cameras]
+    return ext, ints
+
+
+def equal_views(truth: np.ndarray, layout: str, condition: str, seed: int, size: int = VIEW_SIZE):
+    """Split panorecon-frame ERP truth [H, W] with MoGe's split into the views of ``layout`` ("moge": its 12
+    icosahedral views; "fibonacci": panorecon's default 20) and perturb them. -> (distance maps [V] of
+    [size, size] float32, extrinsics [V, 4, 4], normalised intrinsics [V] of [3, 3])."""
+    pano = require_moge()
+    if layout == "moge":
+        ext, ints = pano.get_panorama_cameras()
+    else:
+        from ..geometry import centred_camera, make_layout
+
+        lay = make_layout("fibonacci", 20)
+        ext, ints = panorecon_views_as_moge([centred_camera(d, size, lay.fov_deg) for d in lay.directions])
+    moge_frame = np.roll(truth.astype(np.float32), truth.shape[1] // 2, axis=1)
+    maps = pano.split_panorama_image(moge_frame, ext, ints, size)
+    rng = np.random.default_rng(seed)
+    out = []
+    for m in maps:
+        f = rng.uniform(0.7, 1.4) if condition != "exact" else 1.0
+        noise = 1 + NOISE * rng.standard_normal(m.shape) if condition == "scale+noise" else 1.0
+        out.append((m * f * noise).astype(np.float32))
+    return out, ext, ints
+
+
+def _view_depths(maps, ext, ints):
+    from ..geometry import PinholeCamera, ViewDepth
+
+    vds = []
+    for m, e, k in zip(maps, ext, ints):
+        h, w = m.shape
+        K = np.asarray(k, np.float64) * np.array([[w], [h], [1.0]])
+        vds.append(ViewDepth(PinholeCamera(K, np.asarray(e, np.float64), w, h), m, "distance", np.isfinite(m)))
+    return vds
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        import os
+
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def one_run(method: str, truth_path: str, layout: str, condition: str, seed: int) -> dict:
+    """One merge in this process: -> seconds, abs_rel (median-aligned, against the truth), rss_before_mb."""
+    from ..fusion import fuse_views
+    from ..metrics import depth_metrics
+
+    truth = np.load(truth_path)
+    H, W = truth.shape
+    maps, ext, ints = equal_views(truth, layout, condition, seed)
+    if method == "moge":
+        pano = require_moge()
+        pano.merge_panorama_depth(32, 16, maps[:2], [np.ones_like(m, bool) for m in maps[:2]], ext[:2], ints[:2])
+        masks = [np.isfinite(m) for m in maps]
+        rss = _rss_mb()
+        t = time.perf_counter()
+        depth, _ = pano.merge_panorama_depth(W, H, maps, masks, ext, ints)
+        seconds = time.perf_counter() - t
+        pred = np.roll(depth, -(W // 2), axis=1)
+        extra = {}
+    else:
+        vds = _view_depths(maps, ext, ints)
+        fuse_views(vds[:2], 16, 32)  # warm-up: lazy imports stay out of the timing
+        rss = _rss_mb()
+        t = time.perf_counter()
+        res = fuse_views(vds, H, W)
+        seconds = time.perf_counter() - t
+        pred = res.distance
+        extra = {"iterations": res.report["iterations"]}
+    m = depth_metrics(pred, truth)
+    return {"seconds": seconds, "abs_rel": m["abs_rel"], "pixels": m["pixels"], "rss_before_mb": rss, **extra}
+
+
+def run(scene: str, widths, conditions, seed: int, log=sys.stderr) -> list[dict]:
+    """All rows: per width, condition and method (equal inputs), plus fibonacci-own per width."""
+    from ..scenes import load_scene
+
+    require_moge()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for width in widths:
+            path = str(Path(tmp) / f"truth{width}.npy")
+            np.save(path, load_scene(scene, width).distance.astype(np.float32))
+            jobs = [(m, "moge", c) for c in conditions for m in METHODS] + [("fuse_views", "fibonacci", "scale+noise")]
+            for method, layout, condition in jobs:
+                r = in_fresh_process(one_run, method, path, layout, condition, seed)
+                row = {"erp": f"{width}x{width // 2}", "condition": condition,
+                       "method": "fibonacci-own" if layout == "fibonacci" else method,
+                       "views": 12 if layout == "moge" else 20, **r}
+                print(json.dumps(row), file=log, flush=True)
+                rows.append(row)
+    for row in rows:
+        if row["method"] == "fuse_views":
+            ref = next(r for r in rows if r["method"] == "moge" and r["erp"] == row["erp"]
+                       and r["condition"] == row["condition"])
+            row["speedup_vs_moge"] = ref["seconds"] / row["seconds"]
+            row["abs_rel_ratio_vs_moge"] = row["abs_rel"] / ref["abs_rel"]
+    return rows
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="bedroom")
+    ap.add_argument("--widths", type=int, nargs="+", default=[1024, 2048])
+    ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    rows = run(args.scene, args.widths, args.conditions, args.seed)
+    from importlib.metadata import version
+
+    env = environment()
+    env["versions"]["dlr-moge"] = version("dlr-moge")
+    env["versions"]["dlr-utils3d"] = version("dlr-utils3d")
+    with open("/proc/loadavg") as f:
+        load = f.read().split()[:3]
+    return emit({"benchmark": "fusion-vs-moge-equal-inputs", "scene": args.scene, "view_size": VIEW_SIZE,
+                 "noise": NOISE, "seed": args.seed, "loadavg_after": load, **env, "results": rows}, args.out)
+
+
+if __name__ == "__main__":
+    main()
