@@ -64,6 +64,9 @@ class FusionConfig:
     border_anchor: float = 1e-3  # data weight of a border pixel, relative to w_data
     border_smooth: float = 0.1  # membrane weight (gradient = 0) where a border pixel is filled, relative to w_grad
     border_laplacian: float = 1.0  # Laplacian = 0 weight where a border pixel is filled, relative to w_lap
+    sampling: str = "linear"  # warp: "linear" (edge-aware bilinear, footprint-averaged) or "nearest" (warp.py)
+    supersample: int | None = None  # sub-rays per ERP pixel side, finest level, "linear"; None: from the footprint
+    edge_log: float = 0.1  # "linear" leaves out taps further than this (log distance) from the nearest one
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
@@ -77,6 +80,12 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.border_px={self.border_px!r}: expected an integer >= 0 (view pixels)")
         if self.border_px and not self.border_anchor > 0:
             raise ValueError(f"FusionConfig.border_anchor={self.border_anchor!r}: expected > 0 when border_px > 0")
+        if self.sampling not in ("linear", "nearest"):
+            raise ValueError(f"FusionConfig.sampling={self.sampling!r}: expected 'linear' or 'nearest'")
+        if not (self.supersample is None or (isinstance(self.supersample, int) and 1 <= self.supersample <= 8)):
+            raise ValueError(f"FusionConfig.supersample={self.supersample!r}: expected None or an integer in [1, 8]")
+        if not self.edge_log > 0:
+            raise ValueError(f"FusionConfig.edge_log={self.edge_log!r}: expected > 0 (log distance)")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
         if not (self.tol > 0 and self.maxiter >= 1):
@@ -131,10 +140,14 @@ def _erp_rays(height: int) -> np.ndarray:
     return d
 
 
-def _observe(views, dists, height, border_px: int = 0) -> _Level:
+def _observe(views, dists, height, border_px: int = 0, cfg: FusionConfig | None = None, finest: bool = True) -> _Level:
+    """The views warped onto one pyramid level; ``cfg``'s sampling (coarser levels, which only start the next
+    one, read one bilinear ray per pixel); without ``cfg`` nearest-neighbour."""
     width = 2 * height
     dirs = _erp_rays(height)
-    obs = [warp_to_erp(v, height, width, dirs, d, border_px) for v, d in zip(views, dists)]
+    warp = {} if cfg is None else {"sampling": cfg.sampling, "supersample": cfg.supersample if finest else 1,
+                                   "edge_log": cfg.edge_log}
+    obs = [warp_to_erp(v, height, width, dirs, d, border_px, **warp) for v, d in zip(views, dists)]
     seen = np.zeros(height * width, bool)
     for o in obs:
         seen[o.index] = True
@@ -356,7 +369,7 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
     prev_seen = None
     for li, h in enumerate(pyramid_heights(height, cfg.levels)):
         tl = time.perf_counter()
-        level = _observe(views, dists, h, cfg.border_px)
+        level = _observe(views, dists, h, cfg.border_px, cfg, h == height)
         direct = li == 0 and h * 2 * h <= 40_000
         A, b0, data_w = _assemble(level, cfg, sparse=direct or cfg.preconditioner == "amg")
         if s is None:
