@@ -24,6 +24,9 @@ $PIP install -q --upgrade pip
 $PIP install -q "torch==2.13.0"
 if [ "$extras" = "dev" ]; then
     $PIP install -q -e ".[dev]"
+    # the moge extra without its dependencies: MoGe's merge needs only what panorecon already installs, and the
+    # packages' own lists pull gradio and an unpinned torchvision (see pyproject.toml)
+    $PIP install -q --no-deps "dlr-moge==2.0.0" "dlr-utils3d==1.3"
 else
     $PIP install -q -e .
 fi

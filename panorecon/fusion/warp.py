@@ -63,7 +63,8 @@ def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray
     sampling="nearest": the view pixel whose area holds the ERP pixel's centre ray (no blending at all).
     sampling="linear": the mean log distance over ``supersample`` x ``supersample`` rays spread evenly over
     the ERP pixel (``supersample_rays``), each read bilinearly (``sample_log_linear``: edge-aware, taps more
-    than ``edge_log`` in log distance from the nearest tap are left out, so depth edges are not blended).
+    than ``edge_log`` in log distance from the nearest tap are left out), reads more than ``edge_log`` from the
+    view pixel under the centre ray left out too: depth edges are not blended.
     Averaging what the view holds inside the ERP pixel's footprint is what averages the teacher's
     per-pixel noise; the pixel is observed where its centre ray's nearest view pixel is valid."""
     if sampling not in ("nearest", "linear"):
@@ -86,7 +87,8 @@ def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray
         if k == 1:
             value = sample_log_linear(log_view, x, y, edge_log)
         else:
-            value = _supersampled(view.camera, log_view, index + r0 * width, height, width, k, edge_log)
+            value = _supersampled(view.camera, log_view, index + r0 * width, height, width, k, edge_log,
+                                  log_view[rows, cols])
         keep = np.isfinite(value)  # every sub-ray fell outside the view: the centre ray alone is not enough
         index, value, cos, border = index[keep], value[keep], cos[keep], border[keep]
     return ErpObservation(index + r0 * width, value, cos ** 2, border)
@@ -114,9 +116,10 @@ def footprint_supersample(camera: PinholeCamera, width: int, most: int = 3) -> i
 
 
 def _supersampled(camera: PinholeCamera, log_view: np.ndarray, pixels: np.ndarray, height: int, width: int,
-                  k: int, edge_log: float) -> np.ndarray:
-    """Mean over k x k sub-rays of each ERP pixel of the edge-aware bilinear log distance, [len(pixels)]
-    (NaN where no sub-ray reads a value)."""
+                  k: int, edge_log: float, centre: np.ndarray) -> np.ndarray:
+    """Mean over k x k sub-rays of each ERP pixel of the edge-aware bilinear log distance, [len(pixels)],
+    counting only reads within ``edge_log`` of ``centre`` [len(pixels)] (the view pixel under the ERP pixel's
+    centre ray), so a pixel across a depth edge is not blended either (NaN where no sub-ray reads a value)."""
     total, count = np.zeros(len(pixels)), np.zeros(len(pixels))
     for chunk in range(k * k):  # one sub-ray offset at a time keeps the memory at one ray per pixel
         local = supersample_rays(pixels, height, width, k, chunk) @ camera.rotation_c2w
@@ -125,7 +128,8 @@ def _supersampled(camera: PinholeCamera, log_view: np.ndarray, pixels: np.ndarra
             x = camera.K[0, 0] * local[:, 0] / z + camera.K[0, 2] - 0.5  # pixel-centre coordinates
             y = camera.K[1, 1] * local[:, 1] / z + camera.K[1, 2] - 0.5
         val = sample_log_linear(log_view, np.where(z > 1e-6, x, np.nan), np.where(z > 1e-6, y, np.nan), edge_log)
-        ok = np.isfinite(val)
+        with np.errstate(invalid="ignore"):
+            ok = np.abs(val - centre) <= edge_log
         total[ok] += val[ok]
         count += ok
     with np.errstate(invalid="ignore"):
