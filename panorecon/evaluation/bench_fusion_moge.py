@@ -8,17 +8,21 @@ methods: ``exact`` (as split), ``scale`` (times a random per-view scale in [0.7,
 (AbsRel after median alignment). ``fibonacci-own`` is panorecon on its own default views (20 Fibonacci
 views, ``default_view_size``) split the same way, under ``scale+noise``.
 
-    python -m panorecon.evaluation.bench_fusion_moge [--widths 1024 2048] [--out result.json]
+    python -m panorecon.evaluation.bench_fusion_moge [--widths 1024 2048] [--variants nearest linear-1 linear-2]
+        [--out result.json]
 
 Needs the ``moge`` extra (``dlr-moge`` and ``dlr-utils3d``; see scripts/setup.sh). Every run is a fresh
-process: ``peak_rss_mb`` is that run's peak (imports, truth and views included, ``rss_before_mb`` of it
-before the merge started). MoGe's ERP has its seam at panorecon's lon 0 (columns rolled by W/2); the
+process: ``peak_mb`` is that run's peak resident memory (VmHWM: imports, truth and views included,
+``rss_before_mb`` of it before the merge started). ``seconds`` is wall time, ``cpu_seconds`` the process's
+CPU time; on a shared machine set OMP_NUM_THREADS=1 (recorded in ``thread_env``) so that BLAS threads of
+either method do not fight other work. MoGe's ERP has its seam at panorecon's lon 0 (columns rolled by W/2); the
 benchmark rolls its input and output accordingly.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -102,17 +106,18 @@ def _view_depths(maps, ext, ints):
     return vds
 
 
-def _rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        import os
+def _status_mb(field: str) -> float:
+    """A memory line of /proc/self/status in MB: VmRSS (now) or VmHWM (this process image's peak since exec;
+    unlike getrusage's ru_maxrss it does not carry the parent's RSS at fork)."""
+    with open("/proc/self/status") as f:
+        line = next(ln for ln in f if ln.startswith(field + ":"))
+    return int(line.split()[1]) / 1024.0
 
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
-
-def one_run(method: str, truth_path: str, layout: str, condition: str, seed: int) -> dict:
+def one_run(method: str, truth_path: str, layout: str, condition: str, seed: int, config: dict | None = None) -> dict:
     """One merge in this process: -> seconds (wall), cpu_seconds (this process's CPU time: less disturbed than
     wall time by other work on a shared machine), abs_rel (median-aligned, against the truth), rss_before_mb."""
-    from ..fusion import fuse_views
+    from ..fusion import FusionConfig, fuse_views
     from ..metrics import depth_metrics
 
     truth = np.load(truth_path)
@@ -121,7 +126,7 @@ def one_run(method: str, truth_path: str, layout: str, condition: str, seed: int
     if method == "moge":
         pano = require_moge()
         pano.merge_panorama_depth(32, 16, maps[:2], [np.ones_like(m, bool) for m in maps[:2]], ext[:2], ints[:2])
-        rss = _rss_mb()
+        rss = _status_mb("VmRSS")
         t, c = time.perf_counter(), time.process_time()
         pred = moge_merge_maps(maps, ext, ints, H, W)
         seconds, cpu = time.perf_counter() - t, time.process_time() - c
@@ -129,19 +134,24 @@ def one_run(method: str, truth_path: str, layout: str, condition: str, seed: int
     else:
         vds = _view_depths(maps, ext, ints)
         fuse_views(vds[:2], 16, 32)  # warm-up: lazy imports stay out of the timing
-        rss = _rss_mb()
+        rss = _status_mb("VmRSS")
         t, c = time.perf_counter(), time.process_time()
-        res = fuse_views(vds, H, W)
+        res = fuse_views(vds, H, W, FusionConfig(**(config or {})))
         seconds, cpu = time.perf_counter() - t, time.process_time() - c
         pred = res.distance
         extra = {"iterations": res.report["iterations"]}
     m = depth_metrics(pred, truth)
     return {"seconds": seconds, "cpu_seconds": cpu, "abs_rel": m["abs_rel"], "pixels": m["pixels"], "rss_before_mb": rss,
-            **extra}
+            "peak_mb": _status_mb("VmHWM"), **extra}
 
 
-def run(scene: str, widths, conditions, seed: int, log=sys.stderr) -> list[dict]:
-    """All rows: per width, condition and method (equal inputs), plus fibonacci-own per width."""
+VARIANTS = {"nearest": {"sampling": "nearest"}, "linear-1": {"supersample": 1}, "linear-2": {"supersample": 2}}
+
+
+def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr) -> list[dict]:
+    """All rows: per width, condition and method (equal inputs), plus fibonacci-own per width, plus
+    ``fuse_views[variant]`` (``VARIANTS``: one FusionConfig change each) on the equal inputs under
+    scale+noise."""
     from ..scenes import load_scene
 
     require_moge()
@@ -150,18 +160,23 @@ def run(scene: str, widths, conditions, seed: int, log=sys.stderr) -> list[dict]
         for width in widths:
             path = str(Path(tmp) / f"truth{width}.npy")
             np.save(path, load_scene(scene, width).distance.astype(np.float32))
-            jobs = [(m, "moge", c) for c in conditions for m in METHODS] + [("fuse_views", "fibonacci", "scale+noise")]
-            for method, layout, condition in jobs:
-                r = in_fresh_process(one_run, method, path, layout, condition, seed)
-                row = {"erp": f"{width}x{width // 2}", "condition": condition,
-                       "method": "fibonacci-own" if layout == "fibonacci" else method,
+            jobs = [(m, "moge", c, None) for c in conditions for m in METHODS]
+            jobs += [("fuse_views", "fibonacci", "scale+noise", None)]
+            jobs += [("fuse_views", "moge", "scale+noise", v) for v in variants]
+            for method, layout, condition, variant in jobs:
+                r = in_fresh_process(one_run, method, path, layout, condition, seed, VARIANTS.get(variant))
+                r.pop("peak_rss_mb")  # getrusage's peak counts the parent's RSS at fork: peak_mb is the run's own
+                name = "fibonacci-own" if layout == "fibonacci" else f"{method}[{variant}]" if variant else method
+                row = {"erp": f"{width}x{width // 2}", "condition": condition, "method": name,
                        "views": 12 if layout == "moge" else 20, **r}
                 print(json.dumps(row), file=log, flush=True)
                 rows.append(row)
     for row in rows:
-        if row["method"] in ("fuse_views", "fibonacci-own"):
-            ref = next(r for r in rows if r["method"] == "moge" and r["erp"] == row["erp"]
-                       and r["condition"] == row["condition"])
+        if row["method"] != "moge":
+            ref = next((r for r in rows if r["method"] == "moge" and r["erp"] == row["erp"]
+                        and r["condition"] == row["condition"]), None)
+            if ref is None:
+                continue
             row["speedup_vs_moge"] = ref["seconds"] / row["seconds"]
             row["cpu_speedup_vs_moge"] = ref["cpu_seconds"] / row["cpu_seconds"]
             row["abs_rel_ratio_vs_moge"] = row["abs_rel"] / ref["abs_rel"]
@@ -174,9 +189,13 @@ def main(argv=None) -> dict:
     ap.add_argument("--widths", type=int, nargs="+", default=[1024, 2048])
     ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--variants", nargs="*", default=[], choices=sorted(VARIANTS),
+                    help="also fuse_views with one setting changed (scale+noise): the levers measured alone")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
-    rows = run(args.scene, args.widths, args.conditions, args.seed)
+    with open("/proc/loadavg") as f:
+        load_before = f.read().split()[:3]
+    rows = run(args.scene, args.widths, args.conditions, args.seed, args.variants)
     from importlib.metadata import version
 
     env = environment()
@@ -184,8 +203,10 @@ def main(argv=None) -> dict:
     env["versions"]["dlr-utils3d"] = version("dlr-utils3d")
     with open("/proc/loadavg") as f:
         load = f.read().split()[:3]
+    threads = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS") if k in os.environ}
     return emit({"benchmark": "fusion-vs-moge-equal-inputs", "scene": args.scene, "view_size": VIEW_SIZE,
-                 "noise": NOISE, "seed": args.seed, "loadavg_after": load, **env, "results": rows}, args.out)
+                 "noise": NOISE, "seed": args.seed, "loadavg_before": load_before, "loadavg_after": load,
+                 "thread_env": threads, **env, "results": rows}, args.out)
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..geometry import ViewDepth, erp_directions, sample_erp
+from ..geometry import ViewDepth, erp_pixel_to_lonlat, sample_erp
 from .affine import align_affine_views
 from .operators import (StencilNormalOperator, laplacian_centres, stacked_operator, transpose_apply,
                         vertical_pairs)
@@ -134,8 +134,14 @@ class _Level:
 
 @functools.lru_cache(maxsize=2)
 def _erp_rays(height: int) -> np.ndarray:
-    """Unit ERP directions [H*2H, 3] of one size, computed once (read-only)."""
-    d = erp_directions(height, 2 * height).reshape(-1, 3)
+    """Unit ERP directions [H*2H, 3] of one size (``erp_directions``' values), computed once (read-only):
+    trigonometry per row and per column only, combined by outer products."""
+    width = 2 * height
+    lon, lat = erp_pixel_to_lonlat(np.arange(height, dtype=np.float64), np.arange(width, dtype=np.float64), height, width)
+    cl = np.cos(lat)[:, None]
+    d = np.empty((height, width, 3))
+    d[..., 0], d[..., 1], d[..., 2] = cl * np.cos(lon)[None], -cl * np.sin(lon)[None], np.sin(lat)[:, None]
+    d = d.reshape(-1, 3)
     d.flags.writeable = False
     return d
 

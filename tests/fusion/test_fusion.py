@@ -331,3 +331,10 @@ class TestWarp:
                           sampling="linear", supersample=3)
         d = np.exp(obs.log_distance)
         assert np.minimum(np.abs(d - 1), np.abs(d - 4)).max() < 1e-9
+
+
+def test_cached_erp_rays_are_erp_directions():
+    from panorecon.fusion.lsq import _erp_rays
+
+    np.testing.assert_allclose(_erp_rays(6), erp_directions(6, 12).reshape(-1, 3), rtol=0, atol=1e-15)
+    assert not _erp_rays(6).flags.writeable
