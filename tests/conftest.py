@@ -25,7 +25,8 @@ PYPROJECT = Path(__file__).resolve().parents[1] / "pyproject.toml"
 def tree_entry_points(tmp_path_factory):
     """The ``panorecon.sources`` entry points as this checkout's pyproject.toml declares them, put first on
     sys.path as the panorecon distribution's metadata: the tests see the plug-ins of the tree under test, not
-    those of whatever panorecon was last installed into the environment (spawned workers inherit sys.path)."""
+    those of whatever panorecon was last installed into the environment (spawned workers inherit sys.path,
+    other subprocesses such as notebook kernels get it through PYTHONPATH)."""
     from panorecon.sources import registry
 
     project = tomllib.loads(PYPROJECT.read_text())["project"]
@@ -35,9 +36,15 @@ def tree_entry_points(tmp_path_factory):
     eps = project["entry-points"]["panorecon.sources"]
     (dist / "entry_points.txt").write_text("[panorecon.sources]\n" + "".join(f"{k} = {v}\n" for k, v in eps.items()))
     sys.path.insert(0, str(dist.parent))
+    old_env = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join([str(dist.parent)] + ([old_env] if old_env else []))  # subprocesses
     registry._loaded_entry_points = False
     yield eps
     sys.path.remove(str(dist.parent))
+    if old_env is None:
+        os.environ.pop("PYTHONPATH")
+    else:
+        os.environ["PYTHONPATH"] = old_env
 
 
 @pytest.fixture(scope="session")

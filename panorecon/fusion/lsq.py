@@ -24,7 +24,8 @@ sparse matrix), then Jacobi-preconditioned conjugate gradients on the matrix-fre
 (``operators.StencilNormalOperator``: array shifts, no assembly; optionally pyamg smoothed-aggregation AMG on
 the assembled matrix), warm-started from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent),
 its gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
-Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``).
+Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``). l_i is the
+view's log distance warped onto the level's ERP grid (``warp.py``; ``FusionConfig.sampling``).
 """
 from __future__ import annotations
 
@@ -137,7 +138,7 @@ def _erp_rays(height: int) -> np.ndarray:
     """Unit ERP directions [H*2H, 3] of one size (``erp_directions``' values), computed once (read-only):
     trigonometry per row and per column only, combined by outer products."""
     width = 2 * height
-    lon, lat = erp_pixel_to_lonlat(np.arange(height, dtype=np.float64), np.arange(width, dtype=np.float64), height, width)
+    lon, lat = erp_pixel_to_lonlat(np.arange(height, dtype=float), np.arange(width, dtype=float), height, width)
     cl = np.cos(lat)[:, None]
     d = np.empty((height, width, 3))
     d[..., 0], d[..., 1], d[..., 2] = cl * np.cos(lon)[None], -cl * np.sin(lon)[None], np.sin(lat)[:, None]

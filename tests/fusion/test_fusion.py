@@ -33,8 +33,8 @@ class TestAccuracy:
         """The footprint-averaged bilinear warp averages per-pixel teacher noise that nearest-neighbour
         passes through (12 views of 90 degrees, 128 px, on a 256 x 128 ERP: 2 x 2 sub-rays per pixel)."""
         views = make_views(make_layout("icosahedron-vertices", fov_deg=90), 128, np.random.default_rng(5), noise=0.02)
-        err = {s: depth_metrics(fuse_views(views, 128, 256, FusionConfig(sampling=s)).distance, box_truth(128))["abs_rel"]
-               for s in ("linear", "nearest")}
+        err = {s: depth_metrics(fuse_views(views, 128, 256, FusionConfig(sampling=s)).distance,
+                                box_truth(128))["abs_rel"] for s in ("linear", "nearest")}
         assert err["linear"] <= 0.7 * err["nearest"], err
 
     def test_affine_disparity_views_are_aligned(self, fib20, box_truth):
@@ -270,7 +270,8 @@ class TestWarp:
             return np.nan
         x0, y0 = math.floor(x), math.floor(y)
         fx, fy = x - x0, y - y0
-        taps = {(i, j): (img[i, j] if 0 <= i < h and 0 <= j < w else np.nan) for i in (y0, y0 + 1) for j in (x0, x0 + 1)}
+        taps = {(i, j): (img[i, j] if 0 <= i < h and 0 <= j < w else np.nan)
+                for i in (y0, y0 + 1) for j in (x0, x0 + 1)}
         near = taps[(y0 + (fy >= 0.5), x0 + (fx >= 0.5))]
         num = den = 0.0
         for (i, j), v in taps.items():
