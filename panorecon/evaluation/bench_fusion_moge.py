@@ -57,11 +57,12 @@ def panorecon_views_as_moge(cameras):
     return ext, ints
 
 
-def equal_views(truth: np.ndarray, layout: str, condition: str, seed: int, size: int = VIEW_SIZE):
+def equal_views(truth: np.ndarray, layout: str, condition: str, seed: int, size: int | None = None):
     """Split panorecon-frame ERP truth [H, W] with MoGe's split into the views of ``layout`` ("moge": its 12
     icosahedral views; "fibonacci": panorecon's default 20) and perturb them. -> (distance maps [V] of
-    [size, size] float32, extrinsics [V, 4, 4], normalised intrinsics [V] of [3, 3])."""
+    [size, size] float32 (size: VIEW_SIZE unless given), extrinsics [V, 4, 4], normalised intrinsics [V])."""
     pano = require_moge()
+    size = size or VIEW_SIZE
     if layout == "moge":
         ext, ints = pano.get_panorama_cameras()
     else:
@@ -165,7 +166,7 @@ def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr) 
             jobs += [("fuse_views", "moge", "scale+noise", v) for v in variants]
             for method, layout, condition, variant in jobs:
                 r = in_fresh_process(one_run, method, path, layout, condition, seed, VARIANTS.get(variant))
-                r.pop("peak_rss_mb")  # getrusage's peak counts the parent's RSS at fork: peak_mb is the run's own
+                r.pop("peak_rss_mb", None)  # getrusage's peak counts the parent's RSS at fork: peak_mb is the run's own
                 name = "fibonacci-own" if layout == "fibonacci" else f"{method}[{variant}]" if variant else method
                 row = {"erp": f"{width}x{width // 2}", "condition": condition, "method": name,
                        "views": 12 if layout == "moge" else 20, **r}
