@@ -1,5 +1,6 @@
 """Error against run time for point-cloud fusion: Fibonacci N in {12, 15, 20, 25, 40}, the other layouts,
-and solver settings (pyramid depth, CG tolerance, sky-border width), on the synthetic scenes.
+and solver settings (pyramid depth, CG tolerance, sky-border width, warp sampling), on the synthetic scenes;
+``moge-merge`` is MoGe's own merge (the baselines plug-in, the ``moge`` extra).
 
     python eval/sweep_fusion.py --out out/sweep [--scenes bedroom,beach] [--width 512] [--teacher sim:relative]
 
@@ -33,6 +34,7 @@ def configurations():
         yield f"fibonacci-20-tol{tol:g}", "fibonacci", 20, FusionConfig(tol=tol)
     for border in (0, 2, 8):
         yield f"fibonacci-20-border{border}", "fibonacci", 20, FusionConfig(tol=1e-5, border_px=border)
+    yield "fibonacci-20-nearest", "fibonacci", 20, FusionConfig(tol=1e-5, sampling="nearest")
 
 
 def plot(rows, path: Path) -> None:

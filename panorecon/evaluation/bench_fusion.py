@@ -1,6 +1,7 @@
-"""Fusion benchmark: the method's fusion (20 Fibonacci views) against the MoGe-style reference merge
-(12 icosahedron-vertex views at 90 degrees), measured in the same run, on a box room whose true ray
-distance is known, with per-view random scales in [0.7, 1.4] and 2 % multiplicative noise.
+"""Fusion benchmark: the method's fusion (20 Fibonacci views) against MoGe's own merge (``merge_panorama_depth``
+of the ``dlr-moge`` package on its 12 icosahedron-vertex views at 90 degrees), each on its own default views,
+measured in the same run, on a box room whose true ray distance is known, with per-view random scales in
+[0.7, 1.4] and 2 % multiplicative noise. (Equal inputs for both: ``bench_fusion_moge``.)
 
     python -m panorecon.evaluation.bench_fusion [--quick] [--repeats N] [--out result.json]
 
@@ -29,25 +30,34 @@ def box_distance(d):
 
 
 def one_run(method: str, height: int, view_size: int, seed: int) -> dict:
-    from panorecon.fusion import fuse_views, moge_merge
+    from panorecon.fusion import fuse_views
     from panorecon.geometry import ViewDepth, centred_camera, erp_directions, make_layout
     from panorecon.metrics import depth_metrics
 
-    layout = make_layout("fibonacci", 20) if method == "fibonacci-lsq" else make_layout("icosahedron-vertices", fov_deg=90)
+    from .bench_fusion_moge import moge_cameras, moge_merge_maps, panorecon_views_as_moge
+
+    if method == "fibonacci-lsq":
+        layout = make_layout("fibonacci", 20)
+        cams = [centred_camera(f, view_size, layout.fov_deg) for f in layout.directions]
+    else:
+        cams = moge_cameras(view_size)
     rng = np.random.default_rng(seed)
-    views = []
-    for f in layout.directions:
-        cam = centred_camera(f, view_size, layout.fov_deg)
-        z = box_distance(cam.world_rays()) / cam.z_to_distance_factor()
-        z = z * rng.uniform(0.7, 1.4) * (1 + 0.02 * rng.standard_normal(z.shape))
-        views.append(ViewDepth(cam, z.astype(np.float32), "z", np.ones(z.shape, bool)))
-    fuse = fuse_views if method == "fibonacci-lsq" else moge_merge
-    fuse(views[:2], 16, 32)  # warm-up: lazy imports and first-call costs stay out of the timing
-    t = time.perf_counter()
-    r = fuse(views, height, 2 * height)
-    seconds = time.perf_counter() - t
-    m = depth_metrics(r.distance, box_distance(erp_directions(height, 2 * height)))
-    return {"seconds": seconds, "abs_rel": m["abs_rel"], "iterations": r.report["iterations"]}
+    maps = [(box_distance(c.world_rays()) * rng.uniform(0.7, 1.4) * (1 + 0.02 * rng.standard_normal((c.height, c.width))))
+            .astype(np.float32) for c in cams]
+    if method == "fibonacci-lsq":
+        views = [ViewDepth(c, m, "distance", np.ones(m.shape, bool)) for c, m in zip(cams, maps)]
+        fuse_views(views[:2], 16, 32)  # warm-up: lazy imports and first-call costs stay out of the timing
+        t = time.perf_counter()
+        r = fuse_views(views, height, 2 * height)
+        seconds, pred, its = time.perf_counter() - t, r.distance, r.report["iterations"]
+    else:
+        ext, ints = panorecon_views_as_moge(cams)
+        moge_merge_maps(maps[:2], ext[:2], ints[:2], 16, 32)
+        t = time.perf_counter()
+        pred = moge_merge_maps(maps, ext, ints, height, 2 * height)
+        seconds, its = time.perf_counter() - t, None
+    m = depth_metrics(pred, box_distance(erp_directions(height, 2 * height)))
+    return {"seconds": seconds, "abs_rel": m["abs_rel"], "iterations": its}
 
 
 def main(argv=None) -> dict:

@@ -1,6 +1,5 @@
-"""Multi-view depth -> one panoramic ray-distance map: the §2.4 log-depth least squares, and the
-MoGe-style reference merge it is measured against."""
+"""Multi-view depth -> one panoramic ray-distance map: the §2.4 log-depth least squares. (MoGe's own merge,
+the peer method it is measured against, is the ``moge-merge`` plug-in in the top-level ``baselines`` package.)"""
 from .lsq import FusionConfig, FusionResult, fuse_views, pyramid_heights
-from .moge import moge_merge
 
-__all__ = ["FusionConfig", "FusionResult", "fuse_views", "moge_merge", "pyramid_heights"]
+__all__ = ["FusionConfig", "FusionResult", "fuse_views", "pyramid_heights"]

@@ -25,7 +25,8 @@ sparse matrix), then Jacobi-preconditioned conjugate gradients on the matrix-fre
 the assembled matrix; with ``cg_device`` the same Jacobi-PCG runs in torch, on a GPU when asked), warm-started
 from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent), its
 gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
-Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``).
+Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``). l_i is the
+view's log distance warped onto the level's ERP grid (``warp.py``; ``FusionConfig.sampling``).
 """
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..geometry import ViewDepth, erp_directions, sample_erp
+from ..geometry import ViewDepth, erp_pixel_to_lonlat, sample_erp
 from .affine import align_affine_views
 from .connectivity import check_connectivity
 from .operators import (StencilNormalOperator, TorchStencilOperator, laplacian_centres, stacked_operator,
@@ -67,6 +68,9 @@ class FusionConfig:
     border_smooth: float = 0.1  # membrane weight (gradient = 0) where a border pixel is filled, relative to w_grad
     border_laplacian: float = 1.0  # Laplacian = 0 weight where a border pixel is filled, relative to w_lap
     cg_device: str | None = None  # None: SciPy's CG; "cpu" / "cuda": the same Jacobi-PCG in torch float64 there
+    sampling: str = "linear"  # warp: "linear" (edge-aware bilinear, footprint-averaged) or "nearest" (warp.py)
+    supersample: int | None = None  # sub-rays per ERP pixel side, finest level, "linear"; None: from the footprint
+    edge_log: float = 0.1  # "linear" leaves out taps further than this (log distance) from the nearest one
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
@@ -80,6 +84,12 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.border_px={self.border_px!r}: expected an integer >= 0 (view pixels)")
         if self.border_px and not self.border_anchor > 0:
             raise ValueError(f"FusionConfig.border_anchor={self.border_anchor!r}: expected > 0 when border_px > 0")
+        if self.sampling not in ("linear", "nearest"):
+            raise ValueError(f"FusionConfig.sampling={self.sampling!r}: expected 'linear' or 'nearest'")
+        if not (self.supersample is None or (isinstance(self.supersample, int) and 1 <= self.supersample <= 8)):
+            raise ValueError(f"FusionConfig.supersample={self.supersample!r}: expected None or an integer in [1, 8]")
+        if not self.edge_log > 0:
+            raise ValueError(f"FusionConfig.edge_log={self.edge_log!r}: expected > 0 (log distance)")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
         if self.cg_device is not None and self.preconditioner != "jacobi":
@@ -131,16 +141,26 @@ class _Level:
 
 @functools.lru_cache(maxsize=2)
 def _erp_rays(height: int) -> np.ndarray:
-    """Unit ERP directions [H*2H, 3] of one size, computed once (read-only)."""
-    d = erp_directions(height, 2 * height).reshape(-1, 3)
+    """Unit ERP directions [H*2H, 3] of one size (``erp_directions``' values), computed once (read-only):
+    trigonometry per row and per column only, combined by outer products."""
+    width = 2 * height
+    lon, lat = erp_pixel_to_lonlat(np.arange(height, dtype=float), np.arange(width, dtype=float), height, width)
+    cl = np.cos(lat)[:, None]
+    d = np.empty((height, width, 3))
+    d[..., 0], d[..., 1], d[..., 2] = cl * np.cos(lon)[None], -cl * np.sin(lon)[None], np.sin(lat)[:, None]
+    d = d.reshape(-1, 3)
     d.flags.writeable = False
     return d
 
 
-def _observe(views, dists, height, border_px: int = 0) -> _Level:
+def _observe(views, dists, height, border_px: int = 0, cfg: FusionConfig | None = None, finest: bool = True) -> _Level:
+    """The views warped onto one pyramid level; ``cfg``'s sampling (coarser levels, which only start the next
+    one, read one bilinear ray per pixel); without ``cfg`` nearest-neighbour."""
     width = 2 * height
     dirs = _erp_rays(height)
-    obs = [warp_to_erp(v, height, width, dirs, d, border_px) for v, d in zip(views, dists)]
+    warp = {} if cfg is None else {"sampling": cfg.sampling, "supersample": cfg.supersample if finest else 1,
+                                   "edge_log": cfg.edge_log}
+    obs = [warp_to_erp(v, height, width, dirs, d, border_px, **warp) for v, d in zip(views, dists)]
     seen = np.zeros(height * width, bool)
     for o in obs:
         seen[o.index] = True
@@ -396,7 +416,7 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
     prev_seen = None
     for li, h in enumerate(pyramid_heights(height, cfg.levels)):
         tl = time.perf_counter()
-        level = _observe(views, dists, h, cfg.border_px)
+        level = _observe(views, dists, h, cfg.border_px, cfg, h == height)
         direct = li == 0 and h * 2 * h <= 40_000
         A, b0, data_w = _assemble(level, cfg, sparse=direct or cfg.preconditioner == "amg")
         if s is None:

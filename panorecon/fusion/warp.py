@@ -53,21 +53,118 @@ def region_border(valid: np.ndarray, width_px: int) -> np.ndarray:
 
 
 def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray | None = None,
-                distance: np.ndarray | None = None, border_px: int = 0) -> ErpObservation:
-    """Nearest-neighbour backward warp of a view's ray distance onto the ERP grid (no blending across depth
-    edges). ``directions`` [H*W, 3] may be passed to share the ERP rays between views; ``distance`` [h, w]
-    overrides ``view.to_distance()`` (e.g. after affine alignment); observations within ``border_px`` view
-    pixels of a large invalid region are flagged in ``border`` (``region_border``)."""
+                distance: np.ndarray | None = None, border_px: int = 0, sampling: str = "nearest",
+                supersample: int = 1, edge_log: float = 0.1) -> ErpObservation:
+    """Backward warp of a view's ray distance onto the ERP grid. ``directions`` [H*W, 3] may be passed to
+    share the ERP rays between views; ``distance`` [h, w] overrides ``view.to_distance()`` (e.g. after affine
+    alignment); observations within ``border_px`` view pixels of a large invalid region are flagged in
+    ``border`` (``region_border``).
+
+    sampling="nearest": the view pixel whose area holds the ERP pixel's centre ray (no blending at all).
+    sampling="linear": the mean log distance over ``supersample`` x ``supersample`` rays spread evenly over
+    the ERP pixel (``supersample_rays``), each read bilinearly (``sample_log_linear``: edge-aware, taps more
+    than ``edge_log`` in log distance from the nearest tap are left out), reads more than ``edge_log`` from the
+    view pixel under the centre ray left out too: depth edges are not blended.
+    Averaging what the view holds inside the ERP pixel's footprint is what averages the teacher's
+    per-pixel noise; the pixel is observed where its centre ray's nearest view pixel is valid."""
+    if sampling not in ("nearest", "linear"):
+        raise ValueError(f"warp_to_erp: sampling={sampling!r}; expected 'nearest' or 'linear'")
     if directions is None:
         directions = erp_directions(height, width).reshape(-1, 3)
     dist = view.to_distance() if distance is None else distance
     r0, r1 = view_row_band(view.camera, height)
-    index, rows, cols, cos = project_erp_rays(view.camera, directions[r0 * width:(r1 + 1) * width])
-    index = index + r0 * width
+    index, rows, cols, cos, x, y = project_erp_rays(view.camera, directions[r0 * width:(r1 + 1) * width], True)
     d = dist[rows, cols]
     ok = np.isfinite(d) & (d > 0)
     border = region_border(np.isfinite(dist) & (dist > 0), border_px)[rows, cols]
-    return ErpObservation(index[ok], np.log(d[ok].astype(np.float64)), cos[ok] ** 2, border[ok])
+    index, rows, cols, cos, border, x, y = index[ok], rows[ok], cols[ok], cos[ok], border[ok], x[ok], y[ok]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_view = np.log(np.where(dist > 0, dist, np.nan).astype(np.float64))
+    if sampling == "nearest":
+        value = log_view[rows, cols]
+    else:
+        k = supersample if supersample else footprint_supersample(view.camera, width)
+        if k == 1:
+            value = sample_log_linear(log_view, x, y, edge_log)
+        else:
+            value = _supersampled(view.camera, log_view, index + r0 * width, height, width, k, edge_log,
+                                  log_view[rows, cols])
+        keep = np.isfinite(value)  # every sub-ray fell outside the view: the centre ray alone is not enough
+        index, value, cos, border = index[keep], value[keep], cos[keep], border[keep]
+    return ErpObservation(index + r0 * width, value, cos ** 2, border)
+
+
+def supersample_rays(pixels: np.ndarray, height: int, width: int, k: int, sub: int | None = None) -> np.ndarray:
+    """Unit rays through the centres of a k x k subdivision of each flat ERP pixel: [len(pixels), k*k, 3], or
+    only sub-pixel ``sub`` (row-major in the subdivision) [len(pixels), 3]. Trigonometry on rows and columns
+    only, gathered per pixel."""
+    r, c = np.divmod(pixels, width)
+    subs = range(k * k) if sub is None else [sub]
+    out = []
+    for s in subs:
+        lat = (0.5 - (np.arange(height) + (s // k + 0.5) / k) / height) * np.pi
+        lon = ((np.arange(width) + (s % k + 0.5) / k) / width - 0.5) * 2 * np.pi
+        cl = np.cos(lat)[r]
+        out.append(np.stack([cl * np.cos(lon)[c], -cl * np.sin(lon)[c], np.sin(lat)[r]], -1))
+    return out[0] if sub is not None else np.stack(out, 1)
+
+
+def footprint_supersample(camera: PinholeCamera, width: int, most: int = 3) -> int:
+    """Sub-rays per ERP pixel side: the ERP pixel's angular width over the view's central pixel's, rounded,
+    in [1, most] (1 where the view is no finer than the ERP grid: a bilinear read is then all there is)."""
+    return int(np.clip(np.rint(2 * np.pi / width * camera.K[0, 0]), 1, most))
+
+
+def _supersampled(camera: PinholeCamera, log_view: np.ndarray, pixels: np.ndarray, height: int, width: int,
+                  k: int, edge_log: float, centre: np.ndarray) -> np.ndarray:
+    """Mean over k x k sub-rays of each ERP pixel of the edge-aware bilinear log distance, [len(pixels)],
+    counting only reads within ``edge_log`` of ``centre`` [len(pixels)] (the view pixel under the ERP pixel's
+    centre ray), so a pixel across a depth edge is not blended either (NaN where no sub-ray reads a value)."""
+    total, count = np.zeros(len(pixels)), np.zeros(len(pixels))
+    for chunk in range(k * k):  # one sub-ray offset at a time keeps the memory at one ray per pixel
+        local = supersample_rays(pixels, height, width, k, chunk) @ camera.rotation_c2w
+        z = local[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = camera.K[0, 0] * local[:, 0] / z + camera.K[0, 2] - 0.5  # pixel-centre coordinates
+            y = camera.K[1, 1] * local[:, 1] / z + camera.K[1, 2] - 0.5
+        val = sample_log_linear(log_view, np.where(z > 1e-6, x, np.nan), np.where(z > 1e-6, y, np.nan), edge_log)
+        with np.errstate(invalid="ignore"):
+            ok = np.abs(val - centre) <= edge_log
+        total[ok] += val[ok]
+        count += ok
+    with np.errstate(invalid="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def sample_log_linear(img: np.ndarray, x: np.ndarray, y: np.ndarray, edge_log: float) -> np.ndarray:
+    """Edge-aware bilinear read of ``img`` [h, w] (NaN = invalid) at pixel-centre coordinates x, y [M]
+    (pixel (i, j) has its centre at x = j, y = i). Of the four taps, those that are invalid, outside the
+    image, or more than ``edge_log`` from the tap nearest the point are left out and the bilinear weights
+    of the rest renormalised; NaN where the nearest tap is invalid or the point lies outside the image
+    (x, y outside [-0.5, size - 0.5) or NaN)."""
+    h, w = img.shape
+    pad = np.full((h + 2, w + 2), np.nan)  # a NaN frame: taps beyond the image are invalid taps
+    pad[1:-1, 1:-1] = img
+    flat = pad.ravel()
+    with np.errstate(invalid="ignore"):
+        inside = (x >= -0.5) & (x < w - 0.5) & (y >= -0.5) & (y < h - 0.5)
+    x, y = np.where(inside, x, 0.0), np.where(inside, y, 0.0)
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    i00 = (y0.astype(np.int64) + 1) * (w + 2) + x0.astype(np.int64) + 1
+    taps = [flat[i00], flat[i00 + 1], flat[i00 + w + 2], flat[i00 + w + 3]]
+    weights = [(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]
+    right, below = fx >= 0.5, fy >= 0.5
+    near = np.where(below, np.where(right, taps[3], taps[2]), np.where(right, taps[1], taps[0]))
+    total, wsum = np.zeros(len(x)), np.zeros(len(x))
+    with np.errstate(invalid="ignore"):
+        for tap, wt in zip(taps, weights):
+            use = np.abs(tap - near) <= edge_log  # False for a NaN tap, and for every tap when near is NaN
+            total += np.where(use, wt * tap, 0.0)
+            wsum += np.where(use, wt, 0.0)
+        out = total / wsum
+    out[~inside | ~(wsum > 0)] = np.nan
+    return out
 
 
 def view_row_band(camera: PinholeCamera, height: int) -> tuple[int, int]:
@@ -95,9 +192,10 @@ def view_row_band(camera: PinholeCamera, height: int) -> tuple[int, int]:
     return max(r0, 0), min(r1, height - 1)
 
 
-def project_erp_rays(camera: PinholeCamera, directions: np.ndarray):
+def project_erp_rays(camera: PinholeCamera, directions: np.ndarray, subpixel: bool = False):
     """Which ERP rays [M, 3] (unit) fall inside the view: (flat ray index [K], pixel row [K], pixel col [K],
-    cos of the angle to the optical axis [K]); the pixel is the one whose area contains the ray (nearest)."""
+    cos of the angle to the optical axis [K]); the pixel is the one whose area contains the ray (nearest).
+    ``subpixel``: also the ray's pixel-centre coordinates (x [K], y [K]; pixel (i, j) is centred at x=j, y=i)."""
     local = directions @ camera.rotation_c2w  # camera-frame components
     z = local[:, 2]
     front = np.flatnonzero(z > 1e-6)
@@ -105,5 +203,6 @@ def project_erp_rays(camera: PinholeCamera, directions: np.ndarray):
     u = camera.K[0, 0] * local[front, 0] / z + camera.K[0, 2]
     v = camera.K[1, 1] * local[front, 1] / z + camera.K[1, 2]
     inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    front = front[inside]
-    return front, v[inside].astype(np.int64), u[inside].astype(np.int64), z[inside]
+    front, u, v = front[inside], u[inside], v[inside]
+    out = (front, v.astype(np.int64), u.astype(np.int64), z[inside])
+    return out + (u - 0.5, v - 0.5) if subpixel else out

@@ -1,14 +1,14 @@
-"""The built-in point sources: the Fibonacci fusion (the method), the other layouts, the MoGe-style merge,
-the teacher on the whole ERP, and random points."""
+"""The method's own point sources: the Fibonacci fusion (the method), the other view layouts with the same
+fusion, and random points. Peer methods (MoGe's merge, the teacher on the whole ERP, COLMAP) are plug-ins in
+the top-level ``baselines`` package, registered through the ``panorecon.sources`` entry points."""
 from __future__ import annotations
 
 import time
 
 import numpy as np
 
-from ..fusion import FusionConfig, fuse_views, moge_merge
-from ..fusion.affine import align_affine_views
-from ..geometry import PointCloud, ViewDepth, centred_camera, erp_directions, make_layout, sample_erp
+from ..fusion import FusionConfig, fuse_views
+from ..geometry import PointCloud, centred_camera, erp_directions, make_layout, sample_erp
 from .registry import register_source
 
 
@@ -17,7 +17,7 @@ def default_view_size(erp_width: int) -> int:
     return int(max(32, min(512, round(erp_width / 4))))
 
 
-def _cloud_from_distance(scene, distance: np.ndarray, forwards: np.ndarray | None) -> PointCloud:
+def cloud_from_distance(scene, distance: np.ndarray, forwards: np.ndarray | None) -> PointCloud:
     """Back-project a fused ERP distance; each point's view id is the view whose axis is closest to its ray."""
     keep = np.isfinite(distance) & (distance > 0) & ~scene.sky
     dirs = erp_directions(scene.height, scene.width)[keep]
@@ -27,7 +27,7 @@ def _cloud_from_distance(scene, distance: np.ndarray, forwards: np.ndarray | Non
     return PointCloud(xyz, rgb, None, view_id)
 
 
-def _layout_source(layout_name: str, scene, teacher, views, fusion_config, view_size, fov_deg=None, merge="lsq"):
+def _layout_source(layout_name: str, scene, teacher, views, fusion_config, view_size, fov_deg=None):
     t = time.perf_counter()
     layout = make_layout(layout_name, views, fov_deg)
     size = view_size or default_view_size(scene.width)
@@ -37,16 +37,10 @@ def _layout_source(layout_name: str, scene, teacher, views, fusion_config, view_
     vds = teacher.predict_views(scene, cams)
     seconds["teacher"] = time.perf_counter() - t
     t = time.perf_counter()
-    if merge == "moge":
-        if any(v.affine for v in vds):  # MoGe's merge takes scale-only views: align shifts first
-            dists, _, _ = align_affine_views(vds)
-            vds = [ViewDepth(v.camera, d, "distance", np.isfinite(d)) for v, d in zip(vds, dists)]
-        res = moge_merge(vds, scene.height, scene.width)
-    else:
-        res = fuse_views(vds, scene.height, scene.width, fusion_config or FusionConfig())
+    res = fuse_views(vds, scene.height, scene.width, fusion_config or FusionConfig())
     seconds["fusion"] = time.perf_counter() - t
     t = time.perf_counter()
-    pc = _cloud_from_distance(scene, res.distance, layout.directions)
+    pc = cloud_from_distance(scene, res.distance, layout.directions)
     seconds["points"] = time.perf_counter() - t
     info = {"views": layout.n_views, "fov_deg": layout.fov_deg, "view_size": size, "layout": layout.name,
             "fusion": res.report, "distance": res.distance, "view_depths": vds}
@@ -71,23 +65,6 @@ def latlong(scene, teacher, views=None, fusion_config=None, view_size=None):
 @register_source("cube", "the six cube faces at 90 degrees, same fusion")
 def cube(scene, teacher, views=None, fusion_config=None, view_size=None):
     return _layout_source("cube", scene, teacher, views, fusion_config, view_size)
-
-
-@register_source("moge-merge", "reference: 12 icosahedron-vertex views at 90 degrees, MoGe-style LSMR merge")
-def moge(scene, teacher, views=None, fusion_config=None, view_size=None):
-    return _layout_source("icosahedron-vertices", scene, teacher, views, None, view_size, fov_deg=90.0, merge="moge")
-
-
-@register_source("erp-direct", "the teacher run once on the whole ERP image, no split")
-def erp_direct(scene, teacher, views=None, fusion_config=None, view_size=None):
-    t = time.perf_counter()
-    erp = teacher.predict_erp(scene)
-    seconds = {"teacher": time.perf_counter() - t}
-    t = time.perf_counter()
-    distance = erp.to_distance()
-    pc = _cloud_from_distance(scene, distance, None)
-    seconds["points"] = time.perf_counter() - t
-    return pc, seconds, {"views": 1, "distance": distance, "affine_shift_assumed_zero": erp.affine}
 
 
 @register_source("random", "uniform random points in a ball (the usual 3DGS random initialization)", uses_teacher=False)

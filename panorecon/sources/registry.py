@@ -3,7 +3,9 @@
 In-tree sources register with ``@register_source(name, description)``; third-party packages add theirs
 through the ``panorecon.sources`` entry-point group (the entry point loads a callable of the same
 signature, registered under the entry point's name; a ``uses_teacher = False`` attribute on it says it needs
-no depth teacher; the first line of its docstring is its description).
+no depth teacher; the first line of its docstring is its description). The peer methods in the top-level
+``baselines`` package come in that way too. A plug-in that fails to import is still listed; running it raises
+a PanoreconInputError naming the entry point and the import error, so one broken plug-in breaks no other.
 """
 from __future__ import annotations
 
@@ -44,10 +46,23 @@ def _load_entry_points() -> None:
         return
     _loaded_entry_points = True
     for ep in entry_points(group="panorecon.sources"):
-        if ep.name not in _SOURCES:
+        if ep.name in _SOURCES:
+            continue
+        try:
             fn = ep.load()
-            doc = (fn.__doc__ or "").strip().split("\n")[0] or f"plug-in from {ep.value}"
-            _SOURCES[ep.name] = SourceSpec(ep.name, doc, fn, getattr(fn, "uses_teacher", True))
+        except Exception as e:  # noqa: BLE001  (any import failure of a third party's code)
+            _SOURCES[ep.name] = SourceSpec(ep.name, f"(plug-in {ep.value} failed to load: {e})", _broken(ep, e), False)
+            continue
+        doc = (fn.__doc__ or "").strip().split("\n")[0] or f"plug-in from {ep.value}"
+        _SOURCES[ep.name] = SourceSpec(ep.name, doc, fn, getattr(fn, "uses_teacher", True))
+
+
+def _broken(ep, error: Exception) -> Callable:
+    def fn(*args, **kwargs):
+        raise PanoreconInputError(f"point source {ep.name!r}: its plug-in {ep.value} failed to load "
+                                  f"({type(error).__name__}: {error}); reinstall the package that provides it")
+
+    return fn
 
 
 def list_sources() -> list[SourceSpec]:

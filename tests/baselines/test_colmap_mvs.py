@@ -4,9 +4,9 @@ from __future__ import annotations
 import pycolmap
 import pytest
 
-from panorecon.baselines import BaselineUnavailableError
-from panorecon.baselines.colmap_mvs import run_colmap_mvs
-from panorecon.baselines.sources import colmap_mvs
+from baselines import BaselineUnavailableError
+from baselines.colmap_mvs import run_colmap_mvs
+from baselines.sources import colmap_mvs
 from panorecon.scenes.multiview import render_positions
 from panorecon.scenes.synthetic import build_scene
 

@@ -5,7 +5,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from panorecon.baselines.colmap_sfm import rig_directions, run_colmap_sfm, umeyama
+from baselines.colmap_sfm import rig_directions, run_colmap_sfm, umeyama
 from panorecon.io import PanoreconInputError
 from panorecon.scenes import Scene
 from panorecon.scenes.multiview import panorama_positions, render_positions

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..geometry import PinholeCamera, PointCloud, centred_camera, erp_to_perspective
-from ..io import PanoreconInputError, write_image
+from panorecon.geometry import PinholeCamera, PointCloud, centred_camera, erp_to_perspective
+from panorecon.io import PanoreconInputError, write_image
 
 FOV_DEG = 90.0
 MIN_VIEWS = 6  # 4 around the horizon + up + down tile the sphere at 90 degrees

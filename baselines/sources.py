@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import time
 
-from ..scenes.multiview import render_positions
-from ..sources.builtin import default_view_size
+from panorecon.scenes.multiview import render_positions
+from panorecon.sources.builtin import default_view_size
 from .colmap_mvs import require_cuda, run_colmap_mvs
 from .colmap_sfm import run_colmap_sfm
 

@@ -11,7 +11,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ..geometry import PointCloud
+from panorecon.geometry import PointCloud
 from . import BaselineUnavailableError
 from .colmap_sfm import quiet_colmap, run_colmap_sfm
 
