@@ -15,6 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from panorecon.fusion.affine import align_affine_views
+from panorecon.fusion.connectivity import check_connectivity
 from panorecon.geometry import PinholeCamera, ViewDepth
 from panorecon.io import PanoreconInputError
 from panorecon.sources.builtin import cloud_from_distance, default_view_size
@@ -90,6 +91,7 @@ def moge_merge(scene, teacher, views=None, fusion_config=None, view_size=None):
     pc = cloud_from_distance(scene, distance, forwards)
     seconds["points"] = time.perf_counter() - t
     info = {"views": len(cams), "fov_deg": 90.0, "view_size": size, "layout": "moge-icosahedron-vertices",
-            "fusion": {"solver": "MoGe merge_panorama_depth (dlr-moge): LSMR, coarse to fine"},
+            "fusion": {"solver": "MoGe merge_panorama_depth (dlr-moge): LSMR, coarse to fine",
+                       "connectivity": check_connectivity(vds)},
             "distance": distance, "view_depths": vds}
     return pc, seconds, info
