@@ -17,11 +17,13 @@ from ..geometry import PinholeCamera, centred_camera, erp_to_perspective, intrin
 @dataclass
 class LabelView:
     """camera; rgb [h, w, 3] float32 in [0, 1]; depth [h, w] float32 z-depth (metres or the teacher's units,
-    NaN unknown) or None."""
+    NaN unknown) or None; background [h, w, 3] float32 in [0, 1] composited behind the Gaussians (the sky
+    environment, see splat/initial.py) or None."""
 
     camera: PinholeCamera
     rgb: np.ndarray
     depth: np.ndarray | None = None
+    background: np.ndarray | None = None
 
 
 def make_pseudo_labels(scene, n_views: int, size: int, fov_deg: float = 60.0, layout: str = "fibonacci",

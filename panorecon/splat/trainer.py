@@ -16,6 +16,7 @@ from ..io import atomic_write, peak_rss_mb, write_image, write_json
 from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .labels import LabelView, make_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
+from .initial import points_for_resolution, sky_environment, thin_cloud, view_background
 from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
@@ -49,7 +50,10 @@ class TrainConfig:
     lr_shN: float = _f(2.5e-3 / 20, "higher SH bands learning rate")
     checkpoint_every: int = _f(500, "steps between checkpoints (out_dir/ckpt.pt)")
     heldout: int = _f(8, "held-out true views (synthetic scenes only)")
-    history_every: int = _f(100, "steps between PSNR history samples")
+    history_every: int = _f(100, "steps between history samples (training-view and held-out PSNR)")
+    sky: str = _f("panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none")
+    init_pixels_per_point: float = _f(4.0, "label pixels per initial point over the sphere: the source's cloud is "
+                                      "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)")
     seed: int = _f(0, "random seed")
 
     def digest(self) -> str:
@@ -65,8 +69,19 @@ def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_d
             return_contrib: bool = False):
     V = torch.tensor(np.stack([v.camera.viewmat for v in views]), dtype=torch.float32)
     K = torch.tensor(np.stack([v.camera.K for v in views]), dtype=torch.float32)
-    return rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K, cfg.res, cfg.res,
-                     sh_degree=sh_degree, backend=backend, return_contrib=return_contrib)
+    img, alpha, depth, meta = rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K,
+                                        cfg.res, cfg.res, sh_degree=sh_degree, backend=backend,
+                                        return_contrib=return_contrib)
+    if views[0].background is not None:  # the sky environment behind the Gaussians (splat/initial.py)
+        img = img + (1 - alpha) * torch.from_numpy(np.stack([v.background for v in views]))
+    return img, alpha, depth, meta
+
+
+def _heldout_psnr(model, views, cfg, backend) -> float:
+    """Mean PSNR (dB) of the held-out views, the cheap history sample (no SSIM, no LPIPS)."""
+    with torch.no_grad():
+        return float(np.mean([psnr(_render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1),
+                                   torch.from_numpy(v.rgb)) for v in views]))
 
 
 def _evaluate(model, views, cfg, backend) -> dict:
@@ -101,6 +116,8 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     cfg = config
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"strategy={cfg.strategy!r}: expected one of {', '.join(STRATEGIES)}")
+    if cfg.sky not in ("panorama", "none"):
+        raise ValueError(f"sky={cfg.sky!r}: expected panorama or none")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -110,7 +127,13 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     t = time.perf_counter()
     labels = make_pseudo_labels(scene, cfg.labels, cfg.res, cfg.fov_deg, cfg.layout, depth_fn)
     heldout = make_heldout_views(scene, cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed) if scene.world is not None and cfg.heldout else []
+    env = sky_environment(scene) if cfg.sky == "panorama" else None
+    for v in (*labels, *heldout):
+        v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
+    if cfg.init_pixels_per_point:
+        point_cloud = thin_cloud(point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point),
+                                 cfg.seed)
     model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree)
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [("means", cfg.lr_means * extent), ("quats", cfg.lr_quats), ("log_scales", cfg.lr_scales),
@@ -129,6 +152,8 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         start, history = state["iteration"], state["history"]
         strategy.load_state_dict(state["strategy"])
     t = time.perf_counter()
+    # training seconds exclude the held-out history samples; a resumed run continues from its last sample
+    history_s, clock0 = 0.0, (history[-1].get("seconds", 0.0) if history else 0.0)
     torch.manual_seed(cfg.seed + start)  # split sampling; a resumed run reseeds from its iteration
     gen = np.random.default_rng(cfg.seed)
     order = gen.integers(0, len(labels), size=cfg.iters)
@@ -153,26 +178,35 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
         if cfg.history_every and (it + 1) % cfg.history_every == 0:
-            history.append({"iteration": it + 1, "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
+            te = time.perf_counter()
+            history.append({"iteration": it + 1, "seconds": clock0 + te - t - history_s,
+                            "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
+            if heldout:
+                history[-1]["heldout_psnr"] = _heldout_psnr(model, heldout, cfg, backend)
+            history_s += time.perf_counter() - te
             bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
         if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
             with atomic_write(ckpt) as tmp:
                 torch.save({"iteration": it + 1, "config": cfg.digest(), "history": history, "optimizer": opt.state_dict(),
                             "strategy": strategy.state_dict(),
                             "model": {n: p.detach() for n, p in model.named_parameters()}}, tmp)
-    seconds["train"] = time.perf_counter() - t
+    seconds["train"] = time.perf_counter() - t - history_s
+    seconds["history"] = history_s
     t = time.perf_counter()
     metrics = {"pseudo-label": _evaluate(model, labels, cfg, backend),
                "held-out": _evaluate(model, heldout, cfg, backend) if heldout else "n/a: scene has no ground-truth world"}
     seconds["eval"] = time.perf_counter() - t
     save_ply(model, out / "point_cloud.ply")
+    if env is not None:  # the sky the Gaussians were trained in front of, for viewers of the .ply
+        write_image(out / "sky.png", (env * 255).round().astype(np.uint8))
     with torch.no_grad():
         for name, views in (("label", labels[:3]), ("heldout", heldout[:3])):
             for k, v in enumerate(views):
                 img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).numpy()
                 write_image(out / "renders" / f"{name}_{k}.png", (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8))
     seconds["total"] = time.perf_counter() - t0
-    metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), backend=backend, strategy=cfg.strategy,
+    metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), initial_gaussians=len(point_cloud),
+                   backend=backend, strategy=cfg.strategy,
                    peak_rss_mb=peak_rss_mb(), history=history,
                    config=dataclasses.asdict(cfg))
     write_json(out / "metrics.json", metrics)
