@@ -68,11 +68,12 @@ def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     scene, pc, depth_fn = setup
     from panorecon.splat.initial import points_for_resolution
 
-    c = dict(iters=1, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=0, sh_degree=0)
+    c = dict(iters=1, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=0, sh_degree=0,
+             init_pixels_per_point=4.0)
     n = points_for_resolution(16, 60.0, 4.0)
     assert n < len(pc)
     assert train(scene, pc, TrainConfig(**c), tmp_path / "a", progress=False)["initial_gaussians"] == n
-    kept = train(scene, pc, TrainConfig(**c, init_pixels_per_point=0), tmp_path / "b", progress=False)
+    kept = train(scene, pc, TrainConfig(**{**c, "init_pixels_per_point": 0}), tmp_path / "b", progress=False)
     assert kept["initial_gaussians"] == len(pc)
 
 
