@@ -49,6 +49,9 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     assert all(isinstance(h["heldout_psnr"], float) and h["heldout_psnr"] > 5 for h in hist)
     assert 0 < hist[0]["seconds"] < hist[1]["seconds"] < hist[2]["seconds"] <= m["seconds"]["train"] + 1e-6
     assert hist[-1]["heldout_psnr"] == pytest.approx(after["held-out"]["psnr"], abs=1e-4)
+    best = max(hist, key=lambda h: h["heldout_psnr"])
+    assert m["heldout_best"] == {k: best[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr")}
+    assert trainer_mod.best_heldout([{"iteration": 1, "psnr": 3.0}]).startswith("n/a")
 
 
 def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
