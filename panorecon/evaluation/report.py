@@ -87,7 +87,8 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
         parts += ["## Per scene", ""]
         for scene, g in frame.groupby("scene", sort=False):
             parts += [f"### {scene}", "", markdown_table(average_table(g), " / ".join(suite.row_columns)), ""]
-    parts += ["Plots: `pareto.png` (error against run time), `psnr_vs_iterations.png` (when rows train).", ""]
+    parts += ["Plots: `pareto.png` (error against run time), `psnr_vs_iterations.png` (when rows train), "
+              "`heldout_psnr_vs_seconds.png` (when they have held-out views).", ""]
     with atomic_write(out / "results.md") as tmp:
         Path(tmp).write_text("\n".join(parts))
 
@@ -139,8 +140,9 @@ def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabe
 
 
 def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
-    """pareto.png (held-out PSNR, else pseudo-label PSNR, else AbsRel, against total seconds) and
-    psnr_vs_iterations.png from each training run's history."""
+    """pareto.png (held-out PSNR, else pseudo-label PSNR, else AbsRel, against total seconds),
+    psnr_vs_iterations.png from each training run's history and heldout_psnr_vs_seconds.png where runs have
+    held-out views."""
     trains = "psnr_pl" in frame and frame["psnr_pl"].notna().any()
     y, ylabel, hib = (("psnr_ho", "held-out PSNR (dB)", True) if trains and frame.get("psnr_ho") is not None
                       and frame["psnr_ho"].notna().any() else ("psnr_pl", "pseudo-label PSNR (dB)", True) if trains
@@ -167,3 +169,29 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
         with atomic_write(out / "psnr_vs_iterations.png", suffix=".png") as tmp:
             fig.savefig(tmp, dpi=110)
         plt.close(fig)
+    if trains and "history_heldout" in frame and frame["history_heldout"].notna().any():
+        heldout_vs_seconds_plot(frame[frame["history_heldout"].notna()], out / "heldout_psnr_vs_seconds.png", suite.title)
+
+
+def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") -> None:
+    """Held-out PSNR against training seconds, one line per run (colour: label, line style: scene), from the
+    ``history_heldout`` column ("seconds:psnr;...")."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    labels = list(dict.fromkeys(frame["label"]))
+    scenes = list(dict.fromkeys(frame["scene"])) if "scene" in frame else [None]
+    for _, r in frame.iterrows():
+        pts = [tuple(map(float, kv.split(":"))) for kv in str(r["history_heldout"]).split(";")]
+        k, s = labels.index(r["label"]), scenes.index(r.get("scene"))
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], color=f"C{k % 10}", ls=("-", "--", ":", "-.")[s % 4],
+                label=f"{r['label']}" + (f" / {r['scene']}" if r.get("scene") is not None else ""))
+    ax.set(xlabel="training seconds", ylabel="held-out PSNR (dB)", title=title)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_write(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)

@@ -19,12 +19,14 @@ from ..geometry import (PinholeCamera, centred_camera, erp_to_perspective, intri
 @dataclass
 class LabelView:
     """camera; rgb [h, w, 3] float32 in [0, 1]; depth [h, w] float32 z-depth (metres or the teacher's units,
-    NaN unknown) or None; mask [h, w] bool: the pixels a score may use (None: all)."""
+    NaN unknown) or None; mask [h, w] bool: the pixels a score may use (None: all); background [h, w, 3] float32
+    in [0, 1] composited behind the Gaussians (the sky environment, see splat/initial.py) or None."""
 
     camera: PinholeCamera
     rgb: np.ndarray
     depth: np.ndarray | None = None
     mask: np.ndarray | None = None
+    background: np.ndarray | None = None
 
 
 def make_pseudo_labels(scene, n_views: int, size: int, fov_deg: float = 60.0, layout: str = "fibonacci",

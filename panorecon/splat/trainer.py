@@ -19,6 +19,7 @@ from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import MODEL_KEYS, checkpoint_inputs, load_checkpoint, save_checkpoint
 from .labels import LabelView, make_heldout_views, make_panorama_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
+from .initial import points_for_resolution, sky_environment, thin_cloud, view_background
 from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
@@ -54,7 +55,10 @@ class TrainConfig:
     lr_shN: float = _f(2.5e-3 / 20, "higher SH bands learning rate")
     checkpoint_every: int = _f(500, "steps between checkpoints (out_dir/ckpt.pt)")
     heldout: int = _f(8, "held-out true views (synthetic scenes; dataset scenes with other posed panoramas)")
-    history_every: int = _f(100, "steps between PSNR history samples")
+    history_every: int = _f(100, "steps between history samples (training-view and held-out PSNR)")
+    sky: str = _f("panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none")
+    init_pixels_per_point: float = _f(1.0, "label pixels per initial point over the sphere: the source's cloud is "
+                                      "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)")
     seed: int = _f(0, "random seed")
 
     def digest(self) -> str:
@@ -74,11 +78,27 @@ def _cameras(views: list[LabelView], device) -> tuple[torch.Tensor, torch.Tensor
 
 
 def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_degree: int, backend: str,
-            return_contrib: bool = False, cameras=None):
-    """Render ``views`` (their cameras given as ``cameras`` = (viewmats, Ks) when already on the device)."""
-    V, K = cameras if cameras is not None else _cameras(views, model.means.device)
-    return rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K, cfg.res, cfg.res,
-                     sh_degree=sh_degree, backend=backend, return_contrib=return_contrib)
+            return_contrib: bool = False, cameras=None, background=None):
+    """Render ``views`` (their cameras given as ``cameras`` = (viewmats, Ks) when already on the device) over
+    their sky background (``background`` [V, h, w, 3] when already on the device)."""
+    dev = model.means.device
+    V, K = cameras if cameras is not None else _cameras(views, dev)
+    img, alpha, depth, meta = rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K,
+                                        cfg.res, cfg.res, sh_degree=sh_degree, backend=backend,
+                                        return_contrib=return_contrib)
+    if background is None and views[0].background is not None:  # the sky environment (splat/initial.py)
+        background = torch.from_numpy(np.stack([v.background for v in views])).to(dev)
+    if background is not None:
+        img = img + (1 - alpha) * background
+    return img, alpha, depth, meta
+
+
+def _heldout_psnr(model, views, cfg, backend) -> float:
+    """Mean PSNR (dB) of the held-out views, the cheap history sample (no SSIM, no LPIPS)."""
+    dev = model.means.device
+    with torch.no_grad():
+        return float(np.mean([psnr(_render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1),
+                                   torch.from_numpy(v.rgb).to(dev)) for v in views]))
 
 
 def _evaluate(model, views, cfg, backend) -> dict:
@@ -109,7 +129,7 @@ def _evaluate_masked(model, views, cfg, backend) -> dict:
             m = torch.from_numpy(v.mask)
             if not bool(m.any()):
                 continue
-            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
+            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).cpu()
             ps.append(psnr(img[m], torch.from_numpy(v.rgb)[m]))
             pixels += int(m.sum())
     reason = "n/a: held-out real panoramas are scored on their co-visible pixels only (PSNR)"
@@ -117,6 +137,16 @@ def _evaluate_masked(model, views, cfg, backend) -> dict:
             "views": len(ps), "pixels": pixels, "protocol": "other panoramas of the space, pixels the training "
             "panorama also sees (true distances agree within 5 %)",
             "covisible_fraction": pixels / float(sum(v.mask.size for v in views))}
+
+
+def best_heldout(history: list[dict]) -> dict | str:
+    """The history sample with the highest held-out PSNR: its iteration, training seconds, Gaussians and PSNR
+    (what a run's quality-against-time reads as), or 'n/a: <reason>' when no sample has one."""
+    samples = [h for h in history if "heldout_psnr" in h]
+    if not samples:
+        return "n/a: no held-out PSNR in the history (no held-out views, or history_every = 0)"
+    b = max(samples, key=lambda h: h["heldout_psnr"])
+    return {k: b[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr") if k in b}
 
 
 def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
@@ -138,6 +168,8 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     cfg = config
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"strategy={cfg.strategy!r}: expected one of {', '.join(STRATEGIES)}")
+    if cfg.sky not in ("panorama", "none"):
+        raise ValueError(f"sky={cfg.sky!r}: expected panorama or none")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -156,7 +188,13 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
 
         heldout = make_panorama_heldout_views(scene, heldout_panoramas(scene), cfg.heldout, cfg.res, cfg.fov_deg,
                                               cfg.seed)
+    env = sky_environment(scene) if cfg.sky == "panorama" else None
+    for v in (*labels, *heldout):
+        v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
+    if cfg.init_pixels_per_point:
+        point_cloud = thin_cloud(point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point),
+                                 cfg.seed)
     model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree).to(dev)
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [("means", cfg.lr_means * extent), ("quats", cfg.lr_quats), ("log_scales", cfg.lr_scales),
@@ -182,9 +220,13 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     targets = torch.from_numpy(np.stack([v.rgb for v in labels])).to(dev)
     teachers = None if labels[0].depth is None else torch.from_numpy(np.stack([v.depth for v in labels])).to(dev)
     viewmats, Ks = _cameras(labels, dev)
+    backgrounds = (None if labels[0].background is None
+                   else torch.from_numpy(np.stack([v.background for v in labels])).to(dev))
     first_bad = torch.full((), -1, dtype=torch.long, device=dev)  # first iteration with a non-finite loss
     synchronize(dev)
     t = time.perf_counter()
+    # training seconds exclude the held-out history samples; a resumed run continues from its last sample
+    history_s, clock0 = 0.0, (history[-1].get("seconds", 0.0) if history else 0.0)
     gen = np.random.default_rng(cfg.seed)
     order = gen.integers(0, len(labels), size=cfg.iters)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
@@ -194,7 +236,8 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         k = int(order[it])
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every)
         img, alpha, depth, meta = _render(model, [labels[k]], cfg, deg, backend, strategy.needs_contrib,
-                                          (viewmats[k:k + 1], Ks[k:k + 1]))
+                                          (viewmats[k:k + 1], Ks[k:k + 1]),
+                                          None if backgrounds is None else backgrounds[k:k + 1])
         meta["means2d"].retain_grad()
         target = targets[k:k + 1]
         teacher = None if teachers is None else teachers[k]
@@ -214,7 +257,12 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
             raise FloatingPointError(f"non-finite loss at iteration {int(first_bad)}: check the point cloud and "
                                      "learning rates")
         if cfg.history_every and (it + 1) % cfg.history_every == 0:
-            history.append({"iteration": it + 1, "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
+            te = time.perf_counter()
+            history.append({"iteration": it + 1, "seconds": clock0 + te - t - history_s,
+                            "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
+            if heldout:
+                history[-1]["heldout_psnr"] = _heldout_psnr(model, heldout, cfg, backend)
+            history_s += time.perf_counter() - te
             bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
         if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
             rng = {"rng": torch.get_rng_state()}
@@ -224,20 +272,24 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
                                          "strategy": strategy.state_dict(), **rng,
                                          "model": {n: p.detach() for n, p in model.named_parameters()}})
     synchronize(dev)
-    seconds["train"] = time.perf_counter() - t
+    seconds["train"] = time.perf_counter() - t - history_s
+    seconds["history"] = history_s
     t = time.perf_counter()
     metrics = {"pseudo-label": _evaluate(model, labels, cfg, backend),
                "held-out": _evaluate(model, heldout, cfg, backend) if heldout else "n/a: scene has no ground-truth world"}
     seconds["eval"] = time.perf_counter() - t
     save_ply(model, out / "point_cloud.ply")
+    if env is not None:  # the sky the Gaussians were trained in front of, for viewers of the .ply
+        write_image(out / "sky.png", (env * 255).round().astype(np.uint8))
     with torch.no_grad():
         for name, views in (("label", labels[:3]), ("heldout", heldout[:3])):
             for k, v in enumerate(views):
                 img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).cpu().numpy()
                 write_image(out / "renders" / f"{name}_{k}.png", (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8))
     seconds["total"] = time.perf_counter() - t0
-    metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), backend=backend, strategy=cfg.strategy,
-                   peak_rss_mb=peak_rss_mb(), **device_record(dev), history=history,
+    metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), initial_gaussians=len(point_cloud),
+                   backend=backend, strategy=cfg.strategy, peak_rss_mb=peak_rss_mb(), **device_record(dev),
+                   history=history, heldout_best=best_heldout(history),
                    config=dataclasses.asdict(cfg))
     write_json(out / "metrics.json", metrics)
     ckpt.unlink(missing_ok=True)

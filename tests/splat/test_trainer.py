@@ -49,6 +49,41 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     assert sum(m["seconds"][k] for k in ("backend", "labels", "train", "eval")) <= m["seconds"]["total"]
     assert (tmp_path / "b" / "renders" / "label_0.png").is_file() and not (tmp_path / "b" / "ckpt.pt").exists()
     assert len(load_ply(tmp_path / "b" / "point_cloud.ply")) == after["gaussians"]
+    # every history sample carries the training seconds so far and the held-out PSNR (quality against time)
+    hist = m["history"]
+    assert [h["iteration"] for h in hist] == [20, 40, 60]
+    assert all(isinstance(h["heldout_psnr"], float) and h["heldout_psnr"] > 5 for h in hist)
+    assert 0 < hist[0]["seconds"] < hist[1]["seconds"] < hist[2]["seconds"] <= m["seconds"]["train"] + 1e-6
+    assert hist[-1]["heldout_psnr"] == pytest.approx(after["held-out"]["psnr"], abs=1e-4)
+    best = max(hist, key=lambda h: h["heldout_psnr"])
+    assert m["heldout_best"] == {k: best[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr")}
+    assert trainer_mod.best_heldout([{"iteration": 1, "psnr": 3.0}]).startswith("n/a")
+
+
+def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
+    """Outdoors the cloud has no sky points; the sky environment fills the sky in held-out views."""
+    scene = load_scene("beach", 128)
+    pc, _ = run_source(scene, "fibonacci", "sim:clean")
+    c = dict(iters=1, res=32, labels=8, heldout=4, checkpoint_every=0, history_every=0, sh_degree=0)
+    sky = train(scene, pc, TrainConfig(**c), tmp_path / "sky", progress=False)
+    bare = train(scene, pc, TrainConfig(**c, sky="none"), tmp_path / "bare", progress=False)
+    assert sky["held-out"]["psnr"] > bare["held-out"]["psnr"] + 1.0
+    assert (tmp_path / "sky" / "sky.png").is_file() and not (tmp_path / "bare" / "sky.png").exists()
+    with pytest.raises(ValueError, match="sky="):
+        train(scene, pc, TrainConfig(**c, sky="blue"), tmp_path / "bad", progress=False)
+
+
+def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
+    scene, pc, depth_fn = setup
+    from panorecon.splat.initial import points_for_resolution
+
+    c = dict(iters=1, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=0, sh_degree=0,
+             init_pixels_per_point=4.0)
+    n = points_for_resolution(16, 60.0, 4.0)
+    assert n < len(pc)
+    assert train(scene, pc, TrainConfig(**c), tmp_path / "a", progress=False)["initial_gaussians"] == n
+    kept = train(scene, pc, TrainConfig(**{**c, "init_pixels_per_point": 0}), tmp_path / "b", progress=False)
+    assert kept["initial_gaussians"] == len(pc)
 
 
 def interrupt_training(monkeypatch, run, at_step: int = 45) -> None:
