@@ -95,7 +95,7 @@ def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
 
 def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True) -> dict:
     """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
-    (3DGS layout), renders/, metrics.json and ckpt.pt (resumed when present and made by the same config)."""
+    (3DGS layout), cameras.json (pseudo-label and held-out cameras: viewmat, K, size), renders/, metrics.json and ckpt.pt (resumed when present and made by the same config)."""
     from tqdm import tqdm
 
     cfg = config
@@ -166,6 +166,9 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
                "held-out": _evaluate(model, heldout, cfg, backend) if heldout else "n/a: scene has no ground-truth world"}
     seconds["eval"] = time.perf_counter() - t
     save_ply(model, out / "point_cloud.ply")
+    write_json(out / "cameras.json", {name: [{"viewmat": v.camera.viewmat.tolist(), "K": v.camera.K.tolist(),
+                                              "width": v.camera.width, "height": v.camera.height} for v in views]
+                                      for name, views in (("pseudo-label", labels), ("held-out", heldout))})
     with torch.no_grad():
         for name, views in (("label", labels[:3]), ("heldout", heldout[:3])):
             for k, v in enumerate(views):
