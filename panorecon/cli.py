@@ -182,7 +182,7 @@ def cmd_ablate(args) -> int:
                       cache_dir=args.cache, progress=not args.no_progress)
     cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
     print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
-    print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png")
+    print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png, report.html")
     return 0
 
 
@@ -255,7 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", required=True, help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
     tr.set_defaults(fn=cmd_train)
 
-    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots")
+    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, report.html")
     ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
     ab.add_argument("--out", required=True, help="output folder (its cache/ makes a rerun or a resumed run cheap)")
     ab.add_argument("--jobs", type=int, default=1, help="parallel worker processes")

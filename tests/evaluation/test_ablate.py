@@ -46,6 +46,9 @@ def test_outputs_have_every_metric_with_time_and_memory(first_run):
     assert "| fibonacci | 1 |" in md and "n/a: no LPIPS weights" in md
     assert (d / "out" / "pareto.png").stat().st_size > 10_000
     assert (d / "out" / "psnr_vs_iterations.png").is_file()
+    page = (d / "out" / "report.html").read_text()
+    # both plots, and per row render | label, render | held-out and a cloud screenshot
+    assert page.count("data:image/png;base64,") == 2 + 2 * 3 and page.count("<div class=strip>") == 2
 
 
 def test_second_run_reads_everything_from_the_cache(first_run):
