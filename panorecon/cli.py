@@ -276,9 +276,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .export import add_export_parser
     from .text2pano.command import add_generate_parser
+    from .viewer import add_view_parser
 
     add_generate_parser(sub)
     add_export_parser(sub)
+    add_view_parser(sub)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")
