@@ -275,12 +275,14 @@ def build_parser() -> argparse.ArgumentParser:
     be.set_defaults(fn=cmd_bench)
 
     from .export import add_export_parser
+    from .mesh import add_mesh_parser
     from .text2pano.command import add_generate_parser
     from .viewer import add_view_parser
 
     add_generate_parser(sub)
     add_export_parser(sub)
     add_view_parser(sub)
+    add_mesh_parser(sub)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo")
