@@ -43,6 +43,9 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     assert sum(m["seconds"][k] for k in ("backend", "labels", "train", "eval")) <= m["seconds"]["total"]
     assert (tmp_path / "b" / "renders" / "label_0.png").is_file() and not (tmp_path / "b" / "ckpt.pt").exists()
     assert len(load_ply(tmp_path / "b" / "point_cloud.ply")) == after["gaussians"]
+    cams = json.loads((tmp_path / "b" / "cameras.json").read_text())
+    assert len(cams["pseudo-label"]) == cfg().labels and len(cams["held-out"]) == cfg().heldout
+    assert np.asarray(cams["held-out"][0]["viewmat"]).shape == (4, 4)
 
 
 def interrupt_training(monkeypatch, run, at_step: int = 45) -> None:
