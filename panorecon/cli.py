@@ -261,7 +261,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", required=True, help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
     tr.set_defaults(fn=cmd_train)
 
-    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, report.html")
+    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, "
+                                       "report.html")
     ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
     ab.add_argument("--out", required=True, help="output folder (its cache/ makes a rerun or a resumed run cheap)")
     ab.add_argument("--jobs", type=int, default=1, help="parallel worker processes")

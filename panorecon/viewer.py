@@ -114,6 +114,10 @@ def serve(path: str | Path, port: int = 8080, host: str = "0.0.0.0", point_size:
 
     server = viser.ViserServer(host=host, port=port, verbose=False)
     server.scene.set_up_direction("+z")
+    # start inside, near the panorama centre, looking along +x (the panorama's middle column)
+    server.initial_camera.position = (-0.8, 0.0, 0.3)
+    server.initial_camera.look_at = (1.0, 0.0, 0.0)
+    server.initial_camera.up = (0.0, 0.0, 1.0)
     for p in items.gaussians:
         server.scene.add_gaussian_splats(f"/gaussians/{p.stem}", **gaussian_arrays(p))
     for p in items.clouds:

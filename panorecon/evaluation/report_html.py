@@ -58,7 +58,8 @@ def _table(table: pd.DataFrame, label_header: str) -> str:
         for c, _, f in heads:
             v = r[c]
             ok = v is not None and not (isinstance(v, float) and math.isnan(v))
-            cells.append(f"<td data-v='{float(v)!r}'>{f.format(v)}</td>" if ok else "<td data-v='NaN' class=na>n/a</td>")
+            cells.append(f"<td data-v='{float(v)!r}'>{f.format(v)}</td>" if ok
+                         else "<td data-v='NaN' class=na>n/a</td>")
         out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
     return "".join(out)

@@ -13,7 +13,8 @@ import math
 import numpy as np
 import torch
 
-from ..geometry import centred_camera, erp_directions, fibonacci_directions, look_at_rotation, perspective_to_erp, viewmat_from_pose
+from ..geometry import (centred_camera, erp_directions, fibonacci_directions, look_at_rotation, perspective_to_erp,
+                        viewmat_from_pose)
 from .model import GaussianModel
 from .rasterize import rasterize
 
