@@ -128,9 +128,10 @@ def serve(path: str | Path, port: int = 8080, host: str = "0.0.0.0", point_size:
         colour = next((c for k, c in COLOURS.items() if k in group), COLOURS["source"])
         for k, f in enumerate(frustums):
             c2w = f.viewmat[:3, :3].T
+            # the dense pseudo-label cameras (120+) would hide the scene: listed, off until ticked in the tree
             server.scene.add_camera_frustum(f"/cameras/{group.replace(' ', '_')}/{k}", fov=f.fov_y, aspect=f.aspect,
-                                            scale=0.15, color=colour, wxyz=_wxyz(c2w),
-                                            position=-c2w @ f.viewmat[:3, 3])
+                                            scale=0.12, thickness=0.004, color=colour, wxyz=_wxyz(c2w),
+                                            position=-c2w @ f.viewmat[:3, 3], visible=group != "pseudo-label")
     return server
 
 

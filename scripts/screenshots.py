@@ -25,7 +25,7 @@ def main(run: str, ablation: str, out: str) -> None:
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         page.goto("http://127.0.0.1:8765/")
         page.wait_for_selector("canvas", timeout=120_000)
-        time.sleep(20)  # scene upload and a few software-rendered frames
+        time.sleep(40)  # scene upload and a few software-rendered frames
         page.screenshot(path=str(out_dir / "viewer.png"))
         page = browser.new_page(viewport={"width": 1280, "height": 900})
         page.goto((Path(ablation) / "report.html").resolve().as_uri())
