@@ -106,10 +106,13 @@ def cmd_inspect(args) -> int:
 
 def cmd_demo(args) -> int:
     """The main job on the built-in default scene: render, ground-truth cloud and its screenshot, the method's
-    initial cloud (20 Fibonacci views, simulated teacher, log-depth fusion) with its report, and a short
-    Gaussian training from it (point_cloud.ply, renders/, metrics.json)."""
-    from .scenes import DEFAULT_SCENE
+    initial cloud (20 Fibonacci views, simulated teacher, log-depth fusion) with its report, a short Gaussian
+    training from it (point_cloud.ply, renders/, metrics.json), held-out renders at 256 px and the panorama
+    rendered back from the Gaussians (panorama.png). Its settings are explicit here, not train's defaults."""
+    from .demo import demo_pictures
+    from .scenes import DEFAULT_SCENE, load_scene
 
+    t0 = time.perf_counter()
     out = Path(args.out)
     scene = args.scene or DEFAULT_SCENE
     depth = {k: getattr(args, k) for k in DEPTH_OPTIONS}
@@ -124,10 +127,15 @@ def cmd_demo(args) -> int:
     cmd_inspect(argparse.Namespace(cloud=str(out / "gt_cloud.ply"), screenshot=str(out / "gt_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
     cmd_train(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, width=args.width,
-                                 iters=args.iters, res=64, labels=120, backend=None, strategy=None, seed=None,
-                                 checkpoint_every=None, no_progress=False, out=str(out), **depth))
+                                 iters=args.iters, res=args.res, labels=120, heldout=8, sh_degree=3, backend=None,
+                                 strategy="default", seed=0, checkpoint_every=None, no_progress=False, out=str(out),
+                                 **depth))
     cmd_inspect(argparse.Namespace(cloud=str(out / "fibonacci_cloud.ply"), screenshot=str(out / "fibonacci_cloud.png"),
                                    color=None, point_size=2.0, clip_z=clip_z))
+    p = demo_pictures(load_scene(scene, args.width), out)
+    print(f"panorama rendered back from the Gaussians: PSNR {p['panorama_psnr']:.2f} dB against the input -> "
+          f"{out / 'panorama.png'}; held-out renders at 256 px -> {out / 'renders'}; demo took "
+          f"{time.perf_counter() - t0:.0f} s")
     return 0
 
 
@@ -254,7 +262,7 @@ def cmd_ablate(args) -> int:
     if "warning" in frame:
         for _, r in frame[frame["warning"].fillna("").astype(str) != ""].iterrows():
             print(f"WARNING ({r['label']}, {r['scene']}): {r['warning']}")
-    print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png")
+    print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png, report.html")
     return 0
 
 
@@ -359,7 +367,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
     tr.set_defaults(fn=cmd_train)
 
-    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots")
+    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, "
+                                       "report.html")
     ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
     ab.add_argument("--out", required=True, type=T.out_dir,
                     help="output folder (its cache/ makes a rerun or a resumed run cheap)")
@@ -384,17 +393,22 @@ def build_parser() -> argparse.ArgumentParser:
     be.set_defaults(fn=cmd_bench)
 
     from .export import add_export_parser
+    from .mesh import add_mesh_parser
     from .text2pano.command import add_generate_parser
+    from .viewer import add_view_parser
 
     add_generate_parser(sub)
     add_export_parser(sub)
+    add_view_parser(sub)
+    add_mesh_parser(sub)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
     d.add_argument("--out", default="out/demo", type=T.out_dir)
     d.add_argument("--scene", default=None, help="scene name (default: the built-in default scene)")
     d.add_argument("--width", type=T.ERP_WIDTH, default=512)
     d.add_argument("--teacher", default="sim:relative", help="depth teacher for the method's point cloud")
-    d.add_argument("--iters", type=T.ITERS, default=300, help="training steps (64 px labels)")
+    d.add_argument("--iters", type=T.ITERS, default=300, help="training steps")
+    d.add_argument("--res", type=T.LABEL_RES, default=128, help="label view size in pixels for training")
     d.set_defaults(fn=cmd_demo)
 
     for command in ("render", "gt-cloud", "points", "train", "export", "demo"):  # every command that takes a SCENE

@@ -20,8 +20,19 @@ def point_scalars(pc: PointCloud) -> dict[str, np.ndarray]:
     return out
 
 
+def _headless_gl() -> None:
+    """Without a display, have VTK open an EGL window when libEGL is there (instead of trying X first and
+    printing "bad X server connection"); an explicit $VTK_DEFAULT_OPENGL_WINDOW wins."""
+    import ctypes.util
+
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY") and ctypes.util.find_library("EGL"):
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+
 def _plotter(pc: PointCloud, scalar: str | None, point_size: float, off_screen: bool, clip_z: float | None = None,
              window_size=(1280, 800)):
+    if off_screen:
+        _headless_gl()
     import pyvista as pv
 
     if clip_z is not None:  # drop a ceiling so a room can be seen from above
@@ -47,14 +58,14 @@ def _plotter(pc: PointCloud, scalar: str | None, point_size: float, off_screen: 
 
 
 def screenshot(pc: PointCloud, out: str | os.PathLike, scalar: str | None = None, point_size: float = 2.0,
-               clip_z: float | None = None) -> Path:
-    """Render the cloud off-screen to a PNG (atomically); colour by RGB or by the named scalar;
-    points above ``clip_z`` (metres) are not drawn."""
+               clip_z: float | None = None, window_size=(1280, 800)) -> Path:
+    """Render the cloud off-screen to a PNG of ``window_size`` (width, height) pixels (atomically); colour by RGB
+    or by the named scalar; points above ``clip_z`` (metres) are not drawn."""
     if len(pc) == 0:
         raise PanoreconInputError("the point cloud is empty: nothing to show")
     out = Path(out)
     with quiet_native_stderr():  # VTK's "bad X server connection" noise: off-screen rendering needs no display
-        plotter = _plotter(pc, scalar, point_size, off_screen=True, clip_z=clip_z)
+        plotter = _plotter(pc, scalar, point_size, off_screen=True, clip_z=clip_z, window_size=window_size)
         try:
             with atomic_write(out, suffix=".png") as tmp:
                 plotter.screenshot(str(tmp))

@@ -19,6 +19,17 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
     fi
 fi
 
+# dev: the browser tests (report.html, `panorecon view`) drive Debian's chromium through playwright
+if [ "$extras" = "dev" ] && [ ! -x /usr/bin/chromium ]; then
+    if command -v apt-get >/dev/null; then
+        SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+        $SUDO apt-get update -qq && $SUDO apt-get install -y -qq chromium >/dev/null
+    else
+        echo "panorecon setup: the browser tests need chromium at /usr/bin/chromium; install it" >&2
+        exit 1
+    fi
+fi
+
 [ -x .venv/bin/python ] || python3 -m venv .venv
 PIP=".venv/bin/python -m pip"
 $PIP install -q --upgrade pip

@@ -57,3 +57,22 @@ def real_data() -> Path:
 @pytest.fixture(params=[np.float32, np.float64], ids=["f32", "f64"])
 def float_dtype(request):
     return request.param
+
+
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's package, installed by `scripts/setup.sh dev`
+CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                 "--enable-unsafe-swiftshader", "--disable-background-networking", "--disable-extensions",
+                 "--disable-component-update", "--disable-default-apps", "--no-first-run"]
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """A headless Chromium (software WebGL) driven by playwright; skipped only where chromium is missing."""
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} not found: `bash scripts/setup.sh dev` installs Debian's chromium")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield b
+        b.close()

@@ -74,12 +74,21 @@ def test_lists(capsys):
     assert main(["sources", "list"]) == 0 and "moge-merge" in capsys.readouterr().out
 
 
-def test_demo_runs_the_main_job(tmp_path):
+def test_demo_runs_the_main_job(tmp_path, capfd, monkeypatch):
+    from PIL import Image
+
+    monkeypatch.delenv("DISPLAY", raising=False)
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--width", "128", "--iters", "10"]) == 0
+    assert main(["demo", "--out", str(out), "--width", "128", "--iters", "10", "--res", "32"]) == 0
     for name in ("pano.png", "distance.npy", "mask.png", "gt_cloud.ply", "gt_cloud.png", "fibonacci_cloud.ply",
-                 "fibonacci_report.json", "fibonacci_cloud.png", "point_cloud.ply", "metrics.json", "renders/label_0.png"):
+                 "fibonacci_report.json", "fibonacci_cloud.png", "point_cloud.ply", "metrics.json", "renders/label_0.png",
+                 "cameras.json"):
         assert (out / name).is_file(), name
+    # pictures a person can look at: held-out renders 256 px tall, the panorama rendered back under the input
+    assert Image.open(out / "renders" / "heldout_256_0.png").size == (512, 256)
+    assert Image.open(out / "panorama.png").size == (128, 128)
+    captured = capfd.readouterr()
+    assert "bad X server" not in captured.err and "panorama rendered back" in captured.out
 
 
 def test_train_command(tmp_path, capsys):

@@ -93,8 +93,8 @@ def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, 
 
 def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", scheduler: str | None = None,
               cache_dir=None, progress: bool = True, device: str = "auto") -> pd.DataFrame:
-    """Run (or read from the cache) every row of ``suite``; write DIR/results.csv, results.md and plots.
-    ``device``: where the stages compute (auto, cpu, cuda); a cached stage keeps the device it ran on."""
+    """Run (or read from the cache) every row of ``suite``; write DIR/results.csv, results.md, plots and
+    report.html. ``device``: where the stages compute (auto, cpu, cuda); a cached stage keeps the device it ran on."""
     from ..device import resolve_device
 
     if engine not in ENGINES:
@@ -124,9 +124,13 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
     with atomic_write(out / "results.csv") as tmp:
         frame.to_csv(tmp, index=False)
     from .report import write_plots, write_results_md
+    from .report_html import RowAssets, write_report_html
 
     write_plots(frame, suite, out)
     write_results_md(frame, suite, out, wall_seconds=time.perf_counter() - t0)
+    assets = [RowAssets(cache.folder("train", tk) / "renders" if tk else None,
+                        cache.folder("points", pk) / "cloud.ply", pk) for _, pk, tk in tasks]
+    write_report_html(frame, suite, out, assets, wall_seconds=time.perf_counter() - t0)
     return frame
 
 

@@ -159,10 +159,11 @@ def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
 def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True,
           inputs: dict | None = None, device: str | torch.device = "auto") -> dict:
     """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
-    (3DGS layout), renders/, metrics.json and ckpt.pt, resumed (on any device) when present and written for the
-    same scene, width, config, cloud and ``inputs`` (e.g. source and teacher names; see ``checkpoint.py``).
-    The model, labels, losses, optimizer and strategy live on ``device`` ('auto': CUDA when present); the step
-    loop reads nothing back to the host except every ``history_every`` steps."""
+    (3DGS layout), cameras.json (pseudo-label and held-out cameras: viewmat, K, size), renders/, metrics.json and
+    ckpt.pt, resumed (on any device) when present and written for the same scene, width, config, cloud and
+    ``inputs`` (e.g. source and teacher names; see ``checkpoint.py``). The model, labels, losses, optimizer and
+    strategy live on ``device`` ('auto': CUDA when present); the step loop reads nothing back to the host except
+    every ``history_every`` steps."""
     from tqdm import tqdm
 
     cfg = config
@@ -281,6 +282,9 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     save_ply(model, out / "point_cloud.ply")
     if env is not None:  # the sky the Gaussians were trained in front of, for viewers of the .ply
         write_image(out / "sky.png", (env * 255).round().astype(np.uint8))
+    write_json(out / "cameras.json", {name: [{"viewmat": v.camera.viewmat.tolist(), "K": v.camera.K.tolist(),
+                                              "width": v.camera.width, "height": v.camera.height} for v in views]
+                                      for name, views in (("pseudo-label", labels), ("held-out", heldout))})
     with torch.no_grad():
         for name, views in (("label", labels[:3]), ("heldout", heldout[:3])):
             for k, v in enumerate(views):

@@ -59,6 +59,10 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     assert m["heldout_best"] == {k: best[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr")}
     assert trainer_mod.best_heldout([{"iteration": 1, "psnr": 3.0}]).startswith("n/a")
 
+    cams = json.loads((tmp_path / "b" / "cameras.json").read_text())
+    assert len(cams["pseudo-label"]) == cfg().labels and len(cams["held-out"]) == cfg().heldout
+    assert np.asarray(cams["held-out"][0]["viewmat"]).shape == (4, 4)
+
 
 def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
     """Outdoors the cloud has no sky points; the sky environment fills the sky in held-out views."""
