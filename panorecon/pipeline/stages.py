@@ -12,11 +12,15 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..io import peak_rss_mb, write_json
 from .cache import StageCache, stage_key
+
+if TYPE_CHECKING:
+    from ..fusion import FusionConfig
 
 POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
 TRAIN_CODE = POINTS_CODE + ("splat",)

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-from panorecon.splat.rasterize import cpu_backend, gsplat_backend, project_gaussians, rasterize, resolve_backend
+from panorecon.splat.rasterize import cpu_backend, gsplat_backend, rasterize, resolve_backend
 
 needs_gsplat = pytest.mark.skipif(not gsplat_backend.available(), reason="needs CUDA and the gsplat package")
 W, H = 64, 48
