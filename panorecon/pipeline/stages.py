@@ -15,12 +15,16 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..io import atomic_write, peak_rss_mb, write_json
 from ..teachers import teacher_fingerprint
 from .cache import StageCache, code_digest, stage_key
+
+if TYPE_CHECKING:
+    from ..fusion import FusionConfig
 
 POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
 TRAIN_CODE = POINTS_CODE + ("splat",)

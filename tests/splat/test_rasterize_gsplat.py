@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-from panorecon.splat.rasterize import cpu_backend, gsplat_backend, project_gaussians, rasterize, resolve_backend
+from panorecon.splat.rasterize import cpu_backend, gsplat_backend, rasterize, resolve_backend
 
 needs_gsplat = pytest.mark.skipif(not gsplat_backend.available(), reason="needs CUDA and the gsplat package")
 W, H = 64, 48
@@ -75,7 +75,9 @@ def test_gsplat_radii_and_means2d_follow_the_documented_conventions():
     both = (r["radii"] > 0) & (g["radii"] > 0)
     assert both.sum() > 100
     torch.testing.assert_close(g["means2d"][both], r["means2d"][both], atol=1e-3, rtol=1e-5)
-    torch.testing.assert_close(g["g"][both], r["g"][both], atol=1e-4, rtol=1e-2)
+    # gsplat's boxes add or drop pairs at the 3-sigma edge (alpha near 1/255): small against the largest gradient
+    scale = r["g"].abs().max()
+    torch.testing.assert_close(g["g"][both] / scale, r["g"][both] / scale, atol=2e-3, rtol=1e-2)
     only_ref = (r["radii"] > 0) & ~(g["radii"] > 0)
     near_border = ((r["means2d"][..., 0] < r["radii"]) | (r["means2d"][..., 0] > W - r["radii"])
                    | (r["means2d"][..., 1] < r["radii"]) | (r["means2d"][..., 1] > H - r["radii"]))
