@@ -20,7 +20,7 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
 fi
 
 # dev: the browser tests (report.html, `panorecon view`) drive Debian's chromium through playwright
-if [ "$extras" = "dev" ] && [ ! -x /usr/bin/chromium ]; then
+if [[ "$extras" == *dev* ]] && [ ! -x /usr/bin/chromium ]; then
     if command -v apt-get >/dev/null; then
         SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
         $SUDO apt-get update -qq && $SUDO apt-get install -y -qq chromium >/dev/null
