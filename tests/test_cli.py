@@ -1,4 +1,6 @@
 """The `panorecon` command end to end on small sizes (in-process: main() returns the exit code)."""
+import json
+
 import numpy as np
 import pytest
 
@@ -87,7 +89,20 @@ def test_demo_runs_the_main_job(tmp_path, capfd, monkeypatch):
     # pictures a person can look at: held-out renders 256 px tall, the panorama rendered back under the input
     assert Image.open(out / "renders" / "heldout_256_0.png").size == (512, 256)
     assert Image.open(out / "panorama.png").size == (128, 128)
+    # the values behind the files: the input panorama on top, the truth's cloud one point per valid pixel, the
+    # method's cloud close to the truth, and the rendered-back panorama's PSNR as printed
+    pano = np.asarray(Image.open(out / "pano.png"))
+    both = np.asarray(Image.open(out / "panorama.png"))
+    np.testing.assert_array_equal(both[:64], pano)
+    from panorecon.geometry import PointCloud
+
+    assert len(PointCloud.load_ply(out / "gt_cloud.ply")) == np.isfinite(np.load(out / "distance.npy")).sum()
+    report = json.loads((out / "fibonacci_report.json").read_text())
+    assert report["depth"]["abs_rel"] < 0.1 and report["points"]["chamfer"] < 0.2
+    err = both[64:].astype(float) / 255 - pano.astype(float) / 255
+    psnr = -10 * np.log10(np.mean(err**2))
     captured = capfd.readouterr()
+    assert f"PSNR {psnr:.2f} dB" in captured.out
     assert "bad X server" not in captured.err and "panorama rendered back" in captured.out
 
 
