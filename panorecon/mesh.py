@@ -4,7 +4,8 @@ Normals are estimated from the 16 nearest neighbours (Open3D) and turned towards
 point was seen from there, so its surface faces it); the Poisson surface's vertices of lowest density (the
 per-vertex scalar MeshLab writes: how many samples support them) are trimmed with their faces, which removes
 the surface Poisson invents where nothing was seen. On a synthetic scene the Chamfer distance to the true
-mesh is reported: area-uniform samples of each mesh, exact point-to-triangle distance to the other.
+mesh is reported: area-uniform samples of each mesh, exact point-to-triangle distance to the other; a cloud
+from a non-metric teacher is first scaled by the median factor its source report applied to its own metrics.
 pymeshlab is the ``mesh`` extra.
 """
 from __future__ import annotations
@@ -98,12 +99,10 @@ def mesh_chamfer(v1, f1, v2, f2, samples: int = 100_000, seed: int = 0) -> dict:
     return {"accuracy": acc, "completeness": comp, "chamfer": 0.5 * (acc + comp), "samples": samples}
 
 
-def _scene_of(cloud: Path, scene: str | None) -> str | None:
-    """The --scene, else the scene named by the cloud's report (X_cloud.ply -> X_report.json), else None."""
+def _report_of(cloud: Path) -> dict:
+    """The point source's report beside the cloud (X_cloud.ply -> X_report.json), or {}."""
     rep = cloud.with_name(cloud.name.replace("_cloud.ply", "_report.json"))
-    if scene or rep == cloud or not rep.is_file():
-        return scene
-    return json.loads(rep.read_text()).get("scene")
+    return json.loads(rep.read_text()) if rep != cloud and rep.is_file() else {}
 
 
 def cmd_mesh(args) -> int:
@@ -120,7 +119,10 @@ def cmd_mesh(args) -> int:
     seconds = time.perf_counter() - t
     save_mesh(args.out, v, f, c)
     line = f"{cloud}: {len(pc)} points -> {len(v)} vertices, {len(f)} triangles in {seconds:.1f} s -> {args.out}"
-    name = _scene_of(cloud, args.scene)
+    report = _report_of(cloud)
+    name = args.scene or report.get("scene")
+    # the source's protocol: a non-metric teacher's cloud is compared after its median scale (sources/run.py)
+    scale = float(report.get("points", {}).get("scale_applied", 1.0)) if not args.scene else 1.0
     if name:
         from .scenes import load_scene
 
@@ -129,9 +131,11 @@ def cmd_mesh(args) -> int:
             line += f"; Chamfer n/a: scene {name!r} has no true mesh"
         else:
             true = scene.world.mesh()
-            d = mesh_chamfer(v, f, np.asarray(true.vertices), np.asarray(true.triangles))
-            line += (f"; to {name}'s true mesh: Chamfer {d['chamfer']:.4f} m (accuracy {d['accuracy']:.4f}, "
-                     f"completeness {d['completeness']:.4f}, incl. surfaces the panorama cannot see)")
+            d = mesh_chamfer(v * scale, f, np.asarray(true.vertices), np.asarray(true.triangles))
+            line += (f"; to {name}'s true mesh" + (f" (mesh scaled by the source's median factor {scale:.4f})"
+                                                   if scale != 1.0 else "") +
+                     f": Chamfer {d['chamfer']:.4f} m (accuracy {d['accuracy']:.4f}, completeness "
+                     f"{d['completeness']:.4f}, incl. surfaces the panorama cannot see)")
     print(line)
     return 0
 
@@ -143,6 +147,6 @@ def add_mesh_parser(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--depth", type=int, default=9, help="Poisson octree depth (default 9)")
     m.add_argument("--trim", type=float, default=0.1, help="drop vertices below this density quantile (default 0.1)")
     m.add_argument("--centre", default="0,0,0", help="panorama centre x,y,z in metres; normals face it")
-    m.add_argument("--scene", default=None, help="synthetic scene for the Chamfer to its true mesh "
-                                                 "(default: the scene in the cloud's *_report.json)")
+    m.add_argument("--scene", default=None, help="synthetic scene for the Chamfer to its true mesh, "
+                         "cloud taken as metric (default: the scene and scale in the cloud's *_report.json)")
     m.set_defaults(fn=cmd_mesh)

@@ -60,3 +60,22 @@ def test_cli_writes_the_mesh_and_rejects_bad_input(tmp_path, capsys):
     assert "--trim" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()
     with pytest.raises(PanoreconInputError, match="at least 10"):
         poisson_mesh(PointCloud(np.zeros((3, 3)), np.zeros((3, 3))))
+
+
+def test_chamfer_to_the_true_mesh_uses_the_source_reports_scale(tmp_path, capsys):
+    """A cloud at twice the true scale, with a report saying its source scaled it by 0.5 for its metrics, is
+    measured at the true scale; the same cloud taken as metric (--scene) is not."""
+    import json
+    import re
+
+    from panorecon.scenes import load_scene
+
+    gt = load_scene("bedroom", 128).point_cloud()
+    PointCloud(gt.xyz * 2, gt.rgb).save_ply(tmp_path / "x_cloud.ply")
+    (tmp_path / "x_report.json").write_text(json.dumps({"scene": "bedroom", "points": {"scale_applied": 0.5}}))
+    accuracy = []
+    for extra in ([], ["--scene", "bedroom"]):
+        assert main(["mesh", str(tmp_path / "x_cloud.ply"), "--out", str(tmp_path / "m.ply"), "--depth", "6",
+                     "--centre", "0,0,0"] + extra) == 0
+        accuracy.append(float(re.search(r"accuracy ([0-9.]+)", capsys.readouterr().out).group(1)))
+    assert accuracy[0] < 0.05 < 0.5 < accuracy[1], accuracy
