@@ -179,7 +179,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
         rec.update(gaussians=m["gaussians"], iters=m["iterations"], strategy=m["strategy"],
                    labels=m["config"]["labels"], res=m["config"]["res"],
                    sec_labels=m["seconds"]["labels"], sec_train=m["seconds"]["train"], sec_eval=m["seconds"]["eval"],
-                   peak_mb_train=tr["peak_rss_mb"], history=";".join(f"{h['iteration']}:{h['psnr']:.3f}" for h in m["history"]),
+                   peak_mb_train=tr["peak_rss_mb"],
+                   history=";".join(f"{h['iteration']}:{h['psnr']:.3f}" for h in m["history"]),
                    # held-out PSNR against training seconds (runs made before it was recorded have none)
                    history_heldout=";".join(f"{h['seconds']:.2f}:{h['heldout_psnr']:.3f}" for h in m["history"]
                                             if "heldout_psnr" in h and "seconds" in h) or None)

@@ -170,7 +170,8 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
             fig.savefig(tmp, dpi=110)
         plt.close(fig)
     if trains and "history_heldout" in frame and frame["history_heldout"].notna().any():
-        heldout_vs_seconds_plot(frame[frame["history_heldout"].notna()], out / "heldout_psnr_vs_seconds.png", suite.title)
+        heldout_vs_seconds_plot(frame[frame["history_heldout"].notna()], out / "heldout_psnr_vs_seconds.png",
+                                suite.title)
 
 
 def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") -> None:

@@ -56,7 +56,8 @@ class TrainConfig:
     checkpoint_every: int = _f(500, "steps between checkpoints (out_dir/ckpt.pt)")
     heldout: int = _f(8, "held-out true views (synthetic scenes; dataset scenes with other posed panoramas)")
     history_every: int = _f(100, "steps between history samples (training-view and held-out PSNR)")
-    sky: str = _f("panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none")
+    sky: str = _f("panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) "
+                              "or none")
     init_pixels_per_point: float = _f(1.0, "label pixels per initial point over the sphere: the source's cloud is "
                                       "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)")
     seed: int = _f(0, "random seed")
