@@ -3,6 +3,7 @@
 imported by nothing in ``panorecon/``. ``moge-merge`` (MoGe's own merge, the ``moge`` extra), ``erp-direct``
 (the teacher on the whole ERP), and the classical multi-view baselines on several panoramas of one scene:
 COLMAP SfM (known-pose triangulation and incremental mapping) and COLMAP MVS (CUDA builds of pycolmap only)."""
+
 from panorecon.io import PanoreconInputError
 
 

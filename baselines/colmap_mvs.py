@@ -5,6 +5,7 @@ consistency) and ``stereo_fusion`` into one fused cloud in the scene frame (metr
 PatchMatch stereo exists only in CUDA builds of COLMAP; elsewhere ``run_colmap_mvs`` raises
 ``BaselineUnavailableError`` before doing any work.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -12,6 +13,7 @@ import time
 from pathlib import Path
 
 from panorecon.geometry import PointCloud
+
 from . import BaselineUnavailableError
 from .colmap_sfm import quiet_colmap, run_colmap_sfm
 
@@ -23,11 +25,18 @@ def require_cuda() -> None:
     if not pycolmap.has_cuda:
         raise BaselineUnavailableError(
             f"n/a: needs a CUDA build of pycolmap (installed pycolmap {pycolmap.__version__} has has_cuda=False); "
-            "COLMAP's PatchMatch stereo runs only on CUDA GPUs")
+            "COLMAP's PatchMatch stereo runs only on CUDA GPUs"
+        )
 
 
-def run_colmap_mvs(panoramas, n_views: int = 8, view_size: int = 128, threads: int = 2, seed: int = 0,
-                   workdir: str | Path | None = None) -> tuple[PointCloud, dict]:
+def run_colmap_mvs(
+    panoramas,
+    n_views: int = 8,
+    view_size: int = 128,
+    threads: int = 2,
+    seed: int = 0,
+    workdir: str | Path | None = None,
+) -> tuple[PointCloud, dict]:
     """Panoramas [(position [3] metres, ERP rgb [H, W, 3] uint8, ...), ...] -> (fused PointCloud, report with
     the sparse model's report, fused point count and per-stage seconds). ``workdir`` keeps the workspace."""
     require_cuda()
@@ -35,8 +44,9 @@ def run_colmap_mvs(panoramas, n_views: int = 8, view_size: int = 128, threads: i
 
     with tempfile.TemporaryDirectory(prefix="colmap-mvs-") as tmp:
         root = Path(workdir) if workdir else Path(tmp)
-        sparse = run_colmap_sfm(panoramas, n_views, view_size, mapping=False, threads=threads, seed=seed,
-                                workdir=root / "sparse")
+        sparse = run_colmap_sfm(
+            panoramas, n_views, view_size, mapping=False, threads=threads, seed=seed, workdir=root / "sparse"
+        )
         seconds = dict(sparse.report.pop("seconds"))
         with quiet_colmap():
             t = time.perf_counter()

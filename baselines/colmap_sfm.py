@@ -13,6 +13,7 @@ carry no parallax and are skipped). Then
 
 Image names are ``cam{j}/pano{k}.png``: view j of panorama k (COLMAP's rig convention: one folder per sensor).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -34,7 +35,9 @@ MIN_VIEWS = 6  # 4 around the horizon + up + down tile the sphere at 90 degrees
 def rig_directions(n_views: int) -> np.ndarray:
     """Unit view directions [n_views, 3]: n_views - 2 evenly around the horizon (first along +x), then +z, -z."""
     if n_views < MIN_VIEWS:
-        raise PanoreconInputError(f"views={n_views}: a 90-degree rig needs at least {MIN_VIEWS} views to cover the sphere")
+        raise PanoreconInputError(
+            f"views={n_views}: a 90-degree rig needs at least {MIN_VIEWS} views to cover the sphere"
+        )
     a = 2 * math.pi * np.arange(n_views - 2) / (n_views - 2)
     ring = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1)
     return np.concatenate([ring, [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]])
@@ -91,9 +94,15 @@ def extract_and_match(image_dir: Path, database: Path, images: list[RigImage], t
     reader.camera_params = f"{K[0, 0]},{K[1, 1]},{K[0, 2]},{K[1, 2]}"
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = threads
-    pycolmap.extract_features(database, image_dir, image_names=[im.name for im in images],
-                              camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    pycolmap.extract_features(
+        database,
+        image_dir,
+        image_names=[im.name for im in images],
+        camera_mode=pycolmap.CameraMode.PER_FOLDER,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
     first = {im.view: im.camera for im in images if im.panorama == 0}
     ref = first[0].viewmat[:3, :3]
     rig = pycolmap.RigConfig()
@@ -117,8 +126,11 @@ def extract_and_match(image_dir: Path, database: Path, images: list[RigImage], t
     pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
     db = pycolmap.Database.open(database)
     try:
-        return {"keypoints": int(db.num_keypoints()), "verified_pairs": int(db.num_verified_image_pairs()),
-                "inlier_matches": int(db.num_inlier_matches())}
+        return {
+            "keypoints": int(db.num_keypoints()),
+            "verified_pairs": int(db.num_verified_image_pairs()),
+            "inlier_matches": int(db.num_inlier_matches()),
+        }
     finally:
         db.close()
 
@@ -180,16 +192,22 @@ def umeyama(src: np.ndarray, tgt: np.ndarray) -> tuple[float, np.ndarray, np.nda
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
         S[2, 2] = -1.0
     R = U @ S @ Vt
-    s = float(np.trace(np.diag(D) @ S) / (x ** 2).sum(1).mean())
+    s = float(np.trace(np.diag(D) @ S) / (x**2).sum(1).mean())
     return s, R, my - s * R @ mx
 
 
 def reconstruction_stats(rec) -> dict:
     """Registered frames and images, points, mean track length, mean reprojection error (pixels)."""
-    return {"registered_frames": int(rec.num_reg_frames()), "registered_images": int(rec.num_reg_images()),
-            "images": int(rec.num_images()), "points": int(rec.num_points3D()),
-            "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else 0.0,
-            "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()) if rec.num_points3D() else float("nan")}
+    return {
+        "registered_frames": int(rec.num_reg_frames()),
+        "registered_images": int(rec.num_reg_images()),
+        "images": int(rec.num_images()),
+        "points": int(rec.num_points3D()),
+        "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else 0.0,
+        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error())
+        if rec.num_points3D()
+        else float("nan"),
+    }
 
 
 def reconstruction_cloud(rec) -> PointCloud:
@@ -222,7 +240,7 @@ def align_mapping(rec, images: list[RigImage]) -> dict:
     s, R, t = umeyama(src, tgt)
     rec.transform(pycolmap.Sim3d(s, pycolmap.Rotation3d(R), t))
     res = (s * src @ R.T + t) - tgt
-    return {"aligned": True, "scale": s, "centre_rms_m": float(np.sqrt((res ** 2).sum(1).mean()))}
+    return {"aligned": True, "scale": s, "centre_rms_m": float(np.sqrt((res**2).sum(1).mean()))}
 
 
 @dataclass
@@ -235,8 +253,15 @@ class SfmResult:
     report: dict
 
 
-def run_colmap_sfm(panoramas, n_views: int = 8, view_size: int = 128, mapping: bool = True, threads: int = 2,
-                   seed: int = 0, workdir: str | Path | None = None) -> SfmResult:
+def run_colmap_sfm(
+    panoramas,
+    n_views: int = 8,
+    view_size: int = 128,
+    mapping: bool = True,
+    threads: int = 2,
+    seed: int = 0,
+    workdir: str | Path | None = None,
+) -> SfmResult:
     """Both SfM paths on panoramas [(position [3] metres, ERP rgb [H, W, 3] uint8, ...), ...].
 
     ``workdir`` keeps COLMAP's images/, database.db and the models triangulated/ and mapped/ there
@@ -248,7 +273,9 @@ def run_colmap_sfm(panoramas, n_views: int = 8, view_size: int = 128, mapping: b
         raise PanoreconInputError(f"{len(panoramas)} panorama(s): structure from motion needs at least 2 positions")
     pycolmap.set_random_seed(seed)
     with contextlib.ExitStack() as stack:
-        root = Path(workdir) if workdir else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="colmap-sfm-")))
+        root = (
+            Path(workdir) if workdir else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="colmap-sfm-")))
+        )
         image_dir, database = root / "images", root / "database.db"
         database.unlink(missing_ok=True)
         t = time.perf_counter()
@@ -259,14 +286,20 @@ def run_colmap_sfm(panoramas, n_views: int = 8, view_size: int = 128, mapping: b
         seconds = {"views": time.perf_counter() - t}
         stack.enter_context(quiet_colmap())
         t = time.perf_counter()
-        report = {"panoramas": len(panoramas), "views_per_panorama": n_views, "view_size": view_size,
-                  "fov_deg": FOV_DEG, "matching": extract_and_match(image_dir, database, images, threads)}
+        report = {
+            "panoramas": len(panoramas),
+            "views_per_panorama": n_views,
+            "view_size": view_size,
+            "fov_deg": FOV_DEG,
+            "matching": extract_and_match(image_dir, database, images, threads),
+        }
         seconds["features"] = time.perf_counter() - t
         t = time.perf_counter()
         opts = pipeline_options(threads, seed)
         (root / "triangulated").mkdir(exist_ok=True)
-        tri = pycolmap.triangulate_points(known_pose_reconstruction(database, images), database, image_dir,
-                                          root / "triangulated", options=opts)
+        tri = pycolmap.triangulate_points(
+            known_pose_reconstruction(database, images), database, image_dir, root / "triangulated", options=opts
+        )
         report["triangulation"] = {"ran": True, **reconstruction_stats(tri)}
         seconds["triangulation"] = time.perf_counter() - t
         mapped = None
@@ -277,8 +310,12 @@ def run_colmap_sfm(panoramas, n_views: int = 8, view_size: int = 128, mapping: b
             (root / "mapped").mkdir(exist_ok=True)
             models = pycolmap.incremental_mapping(database, image_dir, root / "mapped", options=opts)
             if not models:
-                report["mapping"] = {"ran": True, "registered_images": 0, "aligned": False,
-                                     "reason": "incremental mapping found no initial pair / model"}
+                report["mapping"] = {
+                    "ran": True,
+                    "registered_images": 0,
+                    "aligned": False,
+                    "reason": "incremental mapping found no initial pair / model",
+                }
             else:
                 best = max(models.values(), key=lambda m: m.num_reg_images())
                 report["mapping"] = {"ran": True, "models": len(models), **reconstruction_stats(best)}
@@ -288,4 +325,3 @@ def run_colmap_sfm(panoramas, n_views: int = 8, view_size: int = 128, mapping: b
             seconds["mapping"] = time.perf_counter() - t
         report["seconds"] = seconds
         return SfmResult(reconstruction_cloud(tri), mapped, report)
-

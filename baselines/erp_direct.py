@@ -1,4 +1,5 @@
 """``erp-direct``: the teacher run once on the whole ERP image, no split (the single-image baseline)."""
+
 from __future__ import annotations
 
 import time

@@ -7,6 +7,7 @@ torchvision, trimesh, ...) is for its model and demos.
 MoGe's ERP puts its seam where panorecon's longitude 0 is: its columns are panorecon's rolled by W / 2. Its
 cameras are in the same world frame and OpenCV axes as panorecon's, so views pass through unchanged.
 """
+
 from __future__ import annotations
 
 import time
@@ -38,8 +39,10 @@ def moge_cameras(size: int) -> list[PinholeCamera]:
     """MoGe's 12 panorama cameras (``get_panorama_cameras``) as panorecon cameras of size x size pixels."""
     extrinsics, intrinsics = moge_panorama().get_panorama_cameras()
     scale = np.array([[size], [size], [1.0]])
-    return [PinholeCamera(np.asarray(k, np.float64) * scale, np.asarray(e, np.float64), size, size)
-            for e, k in zip(extrinsics, intrinsics)]
+    return [
+        PinholeCamera(np.asarray(k, np.float64) * scale, np.asarray(e, np.float64), size, size)
+        for e, k in zip(extrinsics, intrinsics)
+    ]
 
 
 def merge_views(views, height: int, width: int) -> np.ndarray:
@@ -90,8 +93,16 @@ def moge_merge(scene, teacher, views=None, fusion_config=None, view_size=None):
     forwards = np.stack([c.forward for c in cams])
     pc = cloud_from_distance(scene, distance, forwards)
     seconds["points"] = time.perf_counter() - t
-    info = {"views": len(cams), "fov_deg": 90.0, "view_size": size, "layout": "moge-icosahedron-vertices",
-            "fusion": {"solver": "MoGe merge_panorama_depth (dlr-moge): LSMR, coarse to fine",
-                       "connectivity": check_connectivity(vds)},
-            "distance": distance, "view_depths": vds}
+    info = {
+        "views": len(cams),
+        "fov_deg": 90.0,
+        "view_size": size,
+        "layout": "moge-icosahedron-vertices",
+        "fusion": {
+            "solver": "MoGe merge_panorama_depth (dlr-moge): LSMR, coarse to fine",
+            "connectivity": check_connectivity(vds),
+        },
+        "distance": distance,
+        "view_depths": vds,
+    }
     return pc, seconds, info

@@ -7,12 +7,14 @@ side in pixels (default: ERP width / 4, which keeps the panorama's resolution). 
 views, fov_deg, view_size, layout, panoramas (K), distance (None: these sources give no ERP depth map)
 and the baseline's own report under ``baseline``.
 """
+
 from __future__ import annotations
 
 import time
 
 from panorecon.scenes.multiview import render_positions
 from panorecon.sources.builtin import default_view_size
+
 from .colmap_mvs import require_cuda, run_colmap_mvs
 from .colmap_sfm import run_colmap_sfm
 
@@ -27,12 +29,28 @@ def _render(scene, panoramas: int, layout: str, radius_fraction: float, seed: in
 
 
 def _info(views: int, size: int, layout: str, panoramas: int, report: dict) -> dict:
-    return {"views": views, "fov_deg": 90.0, "view_size": size, "layout": f"rig-{views}/{layout}",
-            "panoramas": panoramas, "distance": None, "baseline": report}
+    return {
+        "views": views,
+        "fov_deg": 90.0,
+        "view_size": size,
+        "layout": f"rig-{views}/{layout}",
+        "panoramas": panoramas,
+        "distance": None,
+        "baseline": report,
+    }
 
 
-def colmap_sfm(scene, teacher=None, views=None, fusion_config=None, view_size=None, panoramas=PANORAMAS,
-               layout="ring", radius_fraction=0.3, seed=0):
+def colmap_sfm(
+    scene,
+    teacher=None,
+    views=None,
+    fusion_config=None,
+    view_size=None,
+    panoramas=PANORAMAS,
+    layout="ring",
+    radius_fraction=0.3,
+    seed=0,
+):
     """COLMAP SIFT + exhaustive matching on K panoramas' perspective rigs, triangulated with the known poses;
     incremental mapping also runs and its registration stats and alignment are in info['baseline']['mapping']."""
     n, size = views or VIEWS, view_size or default_view_size(scene.width)
@@ -42,8 +60,17 @@ def colmap_sfm(scene, teacher=None, views=None, fusion_config=None, view_size=No
     return res.cloud, seconds, _info(n, size, layout, panoramas, res.report)
 
 
-def colmap_mvs(scene, teacher=None, views=None, fusion_config=None, view_size=None, panoramas=PANORAMAS,
-               layout="ring", radius_fraction=0.3, seed=0):
+def colmap_mvs(
+    scene,
+    teacher=None,
+    views=None,
+    fusion_config=None,
+    view_size=None,
+    panoramas=PANORAMAS,
+    layout="ring",
+    radius_fraction=0.3,
+    seed=0,
+):
     """COLMAP PatchMatch stereo + fusion on K panoramas' rigs with the known poses (CUDA builds of pycolmap only:
     elsewhere raises BaselineUnavailableError 'n/a: needs a CUDA build of pycolmap ...' before rendering)."""
     require_cuda()

@@ -8,10 +8,10 @@ Per scene: fused AbsRel (median-aligned; for affine teachers also after scale + 
 distance), the teacher's median per-view AbsRel (per view median-aligned, or for affine views fitted to the
 truth by scale and shift: an oracle) and their ratio. Prints one line per scene and JSON at the end.
 """
+
 from __future__ import annotations
 
 import argparse
-import json
 
 import numpy as np
 
@@ -42,14 +42,25 @@ def main(argv=None) -> dict:
                 row["fused_abs_rel_inverse_affine"] = rep["depth_inverse_affine"]["abs_rel"]
                 row["ratio_inverse_affine"] = row["fused_abs_rel_inverse_affine"] / per_view
             rows.append(row)
-            print(f"{teacher:22s} {name:16s} fused {fused:.4f}  per-view {per_view:.4f}  ratio {row['ratio']:.3f}",
-                  flush=True)
+            print(
+                f"{teacher:22s} {name:16s} fused {fused:.4f}  per-view {per_view:.4f}  ratio {row['ratio']:.3f}",
+                flush=True,
+            )
         summary = {"mean_ratio": float(np.mean([r["ratio"] for r in rows])), "scenes": rows}
         if rows and "ratio_inverse_affine" in rows[0]:
             summary["mean_ratio_inverse_affine"] = float(np.mean([r["ratio_inverse_affine"] for r in rows]))
         results[teacher] = summary
-    return emit({"benchmark": "fused vs per-view AbsRel", **environment(), "source": args.source,
-                 "width": args.width, "border_px": args.border_px, "results": results}, args.out)
+    return emit(
+        {
+            "benchmark": "fused vs per-view AbsRel",
+            **environment(),
+            "source": args.source,
+            "width": args.width,
+            "border_px": args.border_px,
+            "results": results,
+        },
+        args.out,
+    )
 
 
 if __name__ == "__main__":

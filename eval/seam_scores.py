@@ -3,6 +3,7 @@ generated panoramas given on the command line, as JSON.
 
     python eval/seam_scores.py [--real-dir ../shared/data/real] [PANO.png ...]
 """
+
 from __future__ import annotations
 
 import argparse

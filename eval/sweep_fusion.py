@@ -7,19 +7,35 @@ and solver settings (pyramid depth, CG tolerance, sky-border width, warp samplin
 Writes sweep.csv (one row per scene x configuration; rows already there are skipped, so an interrupted
 sweep resumes) and pareto.png (AbsRel against seconds: single runs and per-configuration means, Pareto front marked).
 """
+
 from __future__ import annotations
 
 import argparse
 import csv
 from pathlib import Path
 
-from panorecon.fusion import FusionConfig
 from panorecon.evaluation.report import pareto_plot
+from panorecon.fusion import FusionConfig
 from panorecon.io import atomic_write
 from panorecon.scenes import list_scenes, load_scene
 from panorecon.sources import run_source
 
-FIELDS = ["scene", "config", "source", "views", "levels", "tol", "border_px", "abs_rel", "teacher_per_view_abs_rel", "delta1", "chamfer", "seconds", "fusion_seconds", "peak_rss_mb"]
+FIELDS = [
+    "scene",
+    "config",
+    "source",
+    "views",
+    "levels",
+    "tol",
+    "border_px",
+    "abs_rel",
+    "teacher_per_view_abs_rel",
+    "delta1",
+    "chamfer",
+    "seconds",
+    "fusion_seconds",
+    "peak_rss_mb",
+]
 
 
 def configurations():
@@ -44,8 +60,16 @@ def plot(rows, path: Path) -> None:
     df = pd.DataFrame(rows)
     df[["abs_rel", "seconds"]] = df[["abs_rel", "seconds"]].astype(float)
     mean = df.groupby("config")[["seconds", "abs_rel"]].mean()
-    pareto_plot(mean, df, "seconds", "abs_rel", "AbsRel (median-aligned, mean over scenes)", path,
-                title="fusion: error against run time", label_col="config")
+    pareto_plot(
+        mean,
+        df,
+        "seconds",
+        "abs_rel",
+        "AbsRel (median-aligned, mean over scenes)",
+        path,
+        title="fusion: error against run time",
+        label_col="config",
+    )
 
 
 def main(argv=None):
@@ -67,12 +91,22 @@ def main(argv=None):
                 continue
             scene = scene or load_scene(scene_name, args.width)
             _, rep = run_source(scene, source, args.teacher, n, cfg)
-            row = {"scene": scene_name, "config": name, "source": source, "views": rep["views"],
-                   "levels": (cfg.levels or "auto") if cfg else "", "tol": cfg.tol if cfg else "",
-                   "border_px": cfg.border_px if cfg else "", "abs_rel": rep["depth"]["abs_rel"],
-                   "teacher_per_view_abs_rel": rep.get("teacher_per_view_abs_rel_median", ""), "delta1": rep["depth"]["delta1"],
-                   "chamfer": rep["points"]["chamfer"], "seconds": rep["seconds"]["total"] - rep["seconds"]["metrics"],
-                   "fusion_seconds": rep["seconds"].get("fusion", 0.0), "peak_rss_mb": rep["peak_rss_mb"]}
+            row = {
+                "scene": scene_name,
+                "config": name,
+                "source": source,
+                "views": rep["views"],
+                "levels": (cfg.levels or "auto") if cfg else "",
+                "tol": cfg.tol if cfg else "",
+                "border_px": cfg.border_px if cfg else "",
+                "abs_rel": rep["depth"]["abs_rel"],
+                "teacher_per_view_abs_rel": rep.get("teacher_per_view_abs_rel_median", ""),
+                "delta1": rep["depth"]["delta1"],
+                "chamfer": rep["points"]["chamfer"],
+                "seconds": rep["seconds"]["total"] - rep["seconds"]["metrics"],
+                "fusion_seconds": rep["seconds"].get("fusion", 0.0),
+                "peak_rss_mb": rep["peak_rss_mb"],
+            }
             rows.append(row)
             with atomic_write(csv_path) as tmp, open(tmp, "w", newline="") as f:
                 w = csv.DictWriter(f, FIELDS)

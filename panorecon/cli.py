@@ -1,14 +1,15 @@
 """The ``panorecon`` command. Each subcommand imports only what it needs."""
+
 from __future__ import annotations
 
 import argparse
 import errno
 import logging
-
-import numpy as np
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from . import cli_types as T
 from .io import PanoreconInputError
@@ -68,11 +69,21 @@ def cmd_render(args) -> int:
             make_heldout_views(dataclasses.replace(scene, world=rec), args.heldout, res, cfg.fov_deg, cfg.seed)
             save_heldout(out, rec.cameras, rec.renders)
         heldout_note = f", {args.heldout} held-out views at {'/'.join(map(str, args.heldout_res))} px"
-    write_json(out / "scene.json", {"name": scene.name, "kind": scene.kind, "description": scene.description,
-                                    "distance_kind": scene.distance_kind, "meta": scene.meta,
-                                    "free_space_radius": radius})
-    print(f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s{heldout_note} -> {out}"
-          + ("" if scene.distance is not None else " (no depth: distance.npy not written)"))
+    write_json(
+        out / "scene.json",
+        {
+            "name": scene.name,
+            "kind": scene.kind,
+            "description": scene.description,
+            "distance_kind": scene.distance_kind,
+            "meta": scene.meta,
+            "free_space_radius": radius,
+        },
+    )
+    print(
+        f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s{heldout_note} -> {out}"
+        + ("" if scene.distance is not None else " (no depth: distance.npy not written)")
+    )
     return 0
 
 
@@ -124,18 +135,51 @@ def cmd_demo(args) -> int:
     outdoor = bool(np.isinf(np.load(out / "distance.npy")).any()) if (out / "distance.npy").exists() else True
     # indoor scenes (no sky) are shown from above with the ceiling cut away
     clip_z = None if outdoor else float(0.5 * gt.xyz[:, 2].max())
-    cmd_inspect(argparse.Namespace(cloud=str(out / "gt_cloud.ply"), screenshot=str(out / "gt_cloud.png"),
-                                   color=None, point_size=2.0, clip_z=clip_z))
-    cmd_train(argparse.Namespace(scene=scene, source="fibonacci", teacher=args.teacher, views=None, width=args.width,
-                                 iters=args.iters, res=args.res, labels=120, heldout=8, sh_degree=3, backend=None,
-                                 strategy="default", seed=0, checkpoint_every=None, no_progress=False, out=str(out),
-                                 **depth))
-    cmd_inspect(argparse.Namespace(cloud=str(out / "fibonacci_cloud.ply"), screenshot=str(out / "fibonacci_cloud.png"),
-                                   color=None, point_size=2.0, clip_z=clip_z))
+    cmd_inspect(
+        argparse.Namespace(
+            cloud=str(out / "gt_cloud.ply"),
+            screenshot=str(out / "gt_cloud.png"),
+            color=None,
+            point_size=2.0,
+            clip_z=clip_z,
+        )
+    )
+    cmd_train(
+        argparse.Namespace(
+            scene=scene,
+            source="fibonacci",
+            teacher=args.teacher,
+            views=None,
+            width=args.width,
+            iters=args.iters,
+            res=args.res,
+            labels=120,
+            heldout=8,
+            sh_degree=3,
+            backend=None,
+            strategy="default",
+            seed=0,
+            checkpoint_every=None,
+            no_progress=False,
+            out=str(out),
+            **depth,
+        )
+    )
+    cmd_inspect(
+        argparse.Namespace(
+            cloud=str(out / "fibonacci_cloud.ply"),
+            screenshot=str(out / "fibonacci_cloud.png"),
+            color=None,
+            point_size=2.0,
+            clip_z=clip_z,
+        )
+    )
     p = demo_pictures(load_scene(scene, args.width), out)
-    print(f"panorama rendered back from the Gaussians: PSNR {p['panorama_psnr']:.2f} dB against the input -> "
-          f"{out / 'panorama.png'}; held-out renders at 256 px -> {out / 'renders'}; demo took "
-          f"{time.perf_counter() - t0:.0f} s")
+    print(
+        f"panorama rendered back from the Gaussians: PSNR {p['panorama_psnr']:.2f} dB against the input -> "
+        f"{out / 'panorama.png'}; held-out renders at 256 px -> {out / 'renders'}; demo took "
+        f"{time.perf_counter() - t0:.0f} s"
+    )
     return 0
 
 
@@ -158,30 +202,36 @@ def cmd_sources_list(args) -> int:
 
 def _initial_cloud(args, scene, cloud_path, report_path):
     """Run the point source, write its cloud (and report) and print one summary line -> (PointCloud, report)."""
+    from .device import resolve_device
     from .io import save_npy, write_json
+    from .pipeline.stages import fusion_config_for
     from .sources import run_source
 
-    from .device import resolve_device
-    from .pipeline.stages import fusion_config_for
-
     fusion = fusion_config_for(resolve_device(getattr(args, "device", "auto")))
-    pc, report = run_source(scene, args.source, args.teacher, args.views, fusion,
-                            view_size=getattr(args, "view_size", None))
+    pc, report = run_source(
+        scene, args.source, args.teacher, args.views, fusion, view_size=getattr(args, "view_size", None)
+    )
     pc.save_ply(cloud_path)
     if getattr(args, "distance_out", None):
         if pc.meta.get("erp_distance") is None:
-            raise PanoreconInputError(f"--distance-out {args.distance_out}: source {args.source!r} "
-                                      "gives no ERP distance")
+            raise PanoreconInputError(
+                f"--distance-out {args.distance_out}: source {args.source!r} gives no ERP distance"
+            )
         save_npy(args.distance_out, pc.meta["erp_distance"])
     if report_path:
         write_json(report_path, report)
     depth = report.get("depth")
-    d = (f"AbsRel {depth['abs_rel']:.4f}, delta1 {depth['delta1']:.3f}" if isinstance(depth, dict)
-         and isinstance(depth.get("abs_rel"), float) else str(depth))
+    d = (
+        f"AbsRel {depth['abs_rel']:.4f}, delta1 {depth['delta1']:.3f}"
+        if isinstance(depth, dict) and isinstance(depth.get("abs_rel"), float)
+        else str(depth)
+    )
     pts = report["points"]
     chamfer = f"{pts['chamfer']:.4f} m" if isinstance(pts.get("chamfer"), float) else pts.get("chamfer")
-    print(f"{scene.name} / {args.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}, "
-          f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {cloud_path}")
+    print(
+        f"{scene.name} / {args.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}, "
+        f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {cloud_path}"
+    )
     for warning in report.get("warnings", []):
         print(f"WARNING: {warning}")
     return pc, report
@@ -213,18 +263,30 @@ def cmd_train(args) -> int:
     scene = scene_from_args(args)
     out = Path(args.out)
     pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
-    m = train(scene, pc, cfg, args.out, teacher_depth_fn(scene, args.teacher), progress=not args.no_progress,
-              inputs={"source": args.source, "teacher": args.teacher, "views": args.views, "depth": args.depth},
-              device=device)
+    m = train(
+        scene,
+        pc,
+        cfg,
+        args.out,
+        teacher_depth_fn(scene, args.teacher),
+        progress=not args.no_progress,
+        inputs={"source": args.source, "teacher": args.teacher, "views": args.views, "depth": args.depth},
+        device=device,
+    )
     held = m["held-out"]
-    held_txt = f"{held['psnr']:.2f} dB" if isinstance(held, dict) and isinstance(held["psnr"], float) else (
-        held["psnr"] if isinstance(held, dict) else held)
+    held_txt = (
+        f"{held['psnr']:.2f} dB"
+        if isinstance(held, dict) and isinstance(held["psnr"], float)
+        else (held["psnr"] if isinstance(held, dict) else held)
+    )
     lp = m["pseudo-label"]["lpips"]
     lp_txt = f"{lp:.3f}" if isinstance(lp, float) else lp
-    print(f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
-          f"{m['pseudo-label']['ssim']:.3f}, LPIPS {lp_txt}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
-          f"{m['seconds']['total']:.1f} s ({m['seconds']['train']:.1f} s training); peak {m['peak_rss_mb']:.0f} MB; "
-          f"{m['backend']} on {m['device_name']} -> {args.out}")
+    print(
+        f"{scene.name} / {args.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
+        f"{m['pseudo-label']['ssim']:.3f}, LPIPS {lp_txt}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
+        f"{m['seconds']['total']:.1f} s ({m['seconds']['train']:.1f} s training); peak {m['peak_rss_mb']:.0f} MB; "
+        f"{m['backend']} on {m['device_name']} -> {args.out}"
+    )
     return 0
 
 
@@ -238,25 +300,34 @@ def _check_backend(args, device) -> None:
     if backend == "gsplat" and not gsplat_backend.available():
         raise PanoreconInputError(f"--backend gsplat: {gsplat_backend.unavailable_reason()}")
     if backend == "cpu" and device.type != "cpu":
-        raise PanoreconInputError(f"--backend cpu renders on the CPU, but the device is {device}: use --backend "
-                                  "gsplat or torch, or --device cpu")
+        raise PanoreconInputError(
+            f"--backend cpu renders on the CPU, but the device is {device}: use --backend "
+            "gsplat or torch, or --device cpu"
+        )
     if backend == "cpu" and not cpu_backend.available():
         raise PanoreconInputError("--backend cpu: the C++ rasterizer could not be built here (see the log)")
 
 
 # ---------------------------------------------------------------- evaluation
 def cmd_ablate(args) -> int:
+    from .device import resolve_device
     from .evaluation.ablate import run_suite
     from .evaluation.report import average_table
     from .evaluation.suite import load_suite
 
-    from .device import resolve_device
-
     resolve_device(args.device)
     suite = load_suite(args.suite, args.root)
     print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
-    frame = run_suite(suite, args.out, jobs=args.jobs, engine=args.engine, scheduler=args.scheduler,
-                      cache_dir=args.cache, progress=not args.no_progress, device=args.device)
+    frame = run_suite(
+        suite,
+        args.out,
+        jobs=args.jobs,
+        engine=args.engine,
+        scheduler=args.scheduler,
+        cache_dir=args.cache,
+        progress=not args.no_progress,
+        device=args.device,
+    )
     cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
     print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
     if "warning" in frame:
@@ -269,8 +340,9 @@ def cmd_ablate(args) -> int:
 def cmd_bench(args) -> int:
     from .evaluation.bench import run_bench
 
-    return run_bench(args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline,
-                     device=args.device)
+    return run_bench(
+        args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline, device=args.device
+    )
 
 
 # ---------------------------------------------------------------- parser
@@ -283,8 +355,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_device(p) -> None:
-    p.add_argument("--device", default="auto",
-                   help="auto (CUDA when present), cpu or cuda[:K]: where fusion's CG and training run")
+    p.add_argument(
+        "--device", default="auto", help="auto (CUDA when present), cpu or cuda[:K]: where fusion's CG and training run"
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -294,18 +367,31 @@ def build_parser() -> argparse.ArgumentParser:
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes").add_subparsers(dest="what", required=True)
     sc = scenes.add_parser("list", help="name, synthetic or real, ground truth, description")
-    sc.add_argument("--root", default=None, help="list instead the dataset panoramas (Stanford2D3D, Structured3D, "
-                    "Matterport3D) found under this folder, as scene names")
+    sc.add_argument(
+        "--root",
+        default=None,
+        help="list instead the dataset panoramas (Stanford2D3D, Structured3D, "
+        "Matterport3D) found under this folder, as scene names",
+    )
     sc.set_defaults(fn=cmd_scenes_list)
 
     r = sub.add_parser("render", help="write pano.png, distance.npy (float32 metres, inf = sky) and mask.png")
     r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
     r.add_argument("--out", required=True, type=T.out_dir, help="output folder")
     r.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width in pixels (height = width / 2)")
-    r.add_argument("--heldout", type=T.int_in(0, 1000, "held-out view count"), default=8,
-                   help="synthetic scenes: true held-out views to record (as `train --heldout`; 0: none)")
-    r.add_argument("--heldout-res", type=T.LABEL_RES, nargs="+", default=[128],
-                   help="sizes of the recorded held-out views (each a `train --res`)")
+    r.add_argument(
+        "--heldout",
+        type=T.int_in(0, 1000, "held-out view count"),
+        default=8,
+        help="synthetic scenes: true held-out views to record (as `train --heldout`; 0: none)",
+    )
+    r.add_argument(
+        "--heldout-res",
+        type=T.LABEL_RES,
+        nargs="+",
+        default=[128],
+        help="sizes of the recorded held-out views (each a `train --res`)",
+    )
     r.set_defaults(fn=cmd_render)
 
     g = sub.add_parser("gt-cloud", help="the ground-truth coloured point cloud from the true distance")
@@ -319,8 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--screenshot", type=T.out_file, help="render off-screen to this PNG instead of opening a window")
     i.add_argument("--color", default=None, help="colour by this per-point scalar (e.g. view_id, error) instead of RGB")
     i.add_argument("--point-size", type=T.float_in(0.1, 100.0, "point size"), default=2.0)
-    i.add_argument("--clip-z", type=T.FINITE_FLOAT, default=None,
-                   help="hide points above this height (metres), e.g. a ceiling")
+    i.add_argument(
+        "--clip-z", type=T.FINITE_FLOAT, default=None, help="hide points above this height (metres), e.g. a ceiling"
+    )
     i.set_defaults(fn=cmd_inspect)
 
     tl = sub.add_parser("teachers", help="depth teachers").add_subparsers(dest="what", required=True)
@@ -331,16 +418,28 @@ def build_parser() -> argparse.ArgumentParser:
     pt = sub.add_parser("points", help="build an initial point cloud with a point source and report its error")
     pt.add_argument("scene")
     pt.add_argument("--source", required=True, help="see `panorecon sources list`")
-    pt.add_argument("--teacher", default=None, help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S] | "
-                    "hf:<model id or folder> | moge:<checkpoint> (see `panorecon teachers list`)")
+    pt.add_argument(
+        "--teacher",
+        default=None,
+        help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S] | "
+        "hf:<model id or folder> | moge:<checkpoint> (see `panorecon teachers list`)",
+    )
     pt.add_argument("--views", type=T.VIEWS, default=None, help="number of views (fibonacci, latlong)")
-    pt.add_argument("--view-size", type=T.VIEW_SIZE, default=None,
-                    help="perspective view size in pixels (default: ERP width / 4, at most 512)")
+    pt.add_argument(
+        "--view-size",
+        type=T.VIEW_SIZE,
+        default=None,
+        help="perspective view size in pixels (default: ERP width / 4, at most 512)",
+    )
     pt.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
     pt.add_argument("--out", required=True, type=T.out_file, help="output .ply")
     pt.add_argument("--report", default=None, type=T.out_file, help="output report .json")
-    pt.add_argument("--distance-out", default=None, type=T.out_file,
-                    help="also write the fused ERP ray distance (.npy, float32 metres)")
+    pt.add_argument(
+        "--distance-out",
+        default=None,
+        type=T.out_file,
+        help="also write the fused ERP ray distance (.npy, float32 metres)",
+    )
     _add_device(pt)
     pt.set_defaults(fn=cmd_points)
 
@@ -353,31 +452,50 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--iters", type=T.ITERS, default=None, help="optimisation steps (default 3000)")
     tr.add_argument("--res", type=T.LABEL_RES, default=None, help="label view size in pixels (default 128)")
     tr.add_argument("--labels", type=T.LABELS, default=None, help="pseudo-label views (default 240)")
-    tr.add_argument("--checkpoint-every", type=T.ITERS, default=None,
-                    help="steps between checkpoints (OUT/ckpt.pt; default 500)")
-    tr.add_argument("--backend", choices=["auto", "torch", "cpu", "gsplat"], default=None,
-                    help="rasterizer: auto (gsplat on CUDA, cpu on the CPU), torch (the reference), cpu (C++), "
-                         "gsplat (CUDA)")
+    tr.add_argument(
+        "--checkpoint-every", type=T.ITERS, default=None, help="steps between checkpoints (OUT/ckpt.pt; default 500)"
+    )
+    tr.add_argument(
+        "--backend",
+        choices=["auto", "torch", "cpu", "gsplat"],
+        default=None,
+        help="rasterizer: auto (gsplat on CUDA, cpu on the CPU), torch (the reference), cpu (C++), gsplat (CUDA)",
+    )
     _add_device(tr)
-    tr.add_argument("--strategy", choices=["default", "adaptive"], default=None,
-                    help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)")
+    tr.add_argument(
+        "--strategy",
+        choices=["default", "adaptive"],
+        default=None,
+        help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)",
+    )
     tr.add_argument("--seed", type=T.SEED, default=None)
     tr.add_argument("--no-progress", action="store_true")
-    tr.add_argument("--out", required=True, type=T.out_dir,
-                    help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)")
+    tr.add_argument(
+        "--out",
+        required=True,
+        type=T.out_dir,
+        help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)",
+    )
     tr.set_defaults(fn=cmd_train)
 
-    ab = sub.add_parser("ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, "
-                                       "report.html")
+    ab = sub.add_parser(
+        "ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, report.html"
+    )
     ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
-    ab.add_argument("--out", required=True, type=T.out_dir,
-                    help="output folder (its cache/ makes a rerun or a resumed run cheap)")
+    ab.add_argument(
+        "--out", required=True, type=T.out_dir, help="output folder (its cache/ makes a rerun or a resumed run cheap)"
+    )
     ab.add_argument("--jobs", type=T.JOBS, default=1, help="parallel worker processes")
-    ab.add_argument("--engine", choices=["local", "dask"], default="local",
-                    help="local process pool, or Dask (a LocalCluster, or --scheduler ADDRESS)")
+    ab.add_argument(
+        "--engine",
+        choices=["local", "dask"],
+        default="local",
+        help="local process pool, or Dask (a LocalCluster, or --scheduler ADDRESS)",
+    )
     ab.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (with --engine dask)")
-    ab.add_argument("--cache", default=None, type=T.out_dir,
-                    help="stage cache folder shared between suites (default OUT/cache)")
+    ab.add_argument(
+        "--cache", default=None, type=T.out_dir, help="stage cache folder shared between suites (default OUT/cache)"
+    )
     ab.add_argument("--no-progress", action="store_true")
     ab.add_argument("--root", default=None, help="dataset root for a suite's {root} (default $PANORECON_DATASET_ROOT)")
     _add_device(ab)
@@ -422,17 +540,36 @@ DEPTH_OPTIONS = ("depth", "depth_scale", "depth_kind")
 def _add_depth_options(parser: argparse.ArgumentParser) -> None:
     """--depth / --depth-scale / --depth-kind: a real panorama's true depth (see panorecon.io.depth)."""
     g = parser.add_argument_group("true depth of a real panorama")
-    g.add_argument("--depth", default=None,
-                   help="true depth file (16-bit .png, .exr, .npy) of the same pixel size as the image")
-    g.add_argument("--depth-scale", type=T.float_in(1e-9, 1e9, "depth scale"), default=None,
-                   help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)")
-    g.add_argument("--depth-kind", choices=("distance", "z"), default=None,
-                   help="distance along the ray (default) or cube-face z-depth")
+    g.add_argument(
+        "--depth", default=None, help="true depth file (16-bit .png, .exr, .npy) of the same pixel size as the image"
+    )
+    g.add_argument(
+        "--depth-scale",
+        type=T.float_in(1e-9, 1e9, "depth scale"),
+        default=None,
+        help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)",
+    )
+    g.add_argument(
+        "--depth-kind",
+        choices=("distance", "z"),
+        default=None,
+        help="distance along the ray (default) or cube-face z-depth",
+    )
 
 
 # OS errors that mean the user's paths or disk, not a bug: reported as one line like bad input
-USER_OS_ERRORS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.EEXIST, errno.ENOTDIR, errno.EISDIR, errno.ENOENT,
-                  errno.ENOSPC, errno.EDQUOT, errno.ENAMETOOLONG}
+USER_OS_ERRORS = {
+    errno.EACCES,
+    errno.EPERM,
+    errno.EROFS,
+    errno.EEXIST,
+    errno.ENOTDIR,
+    errno.EISDIR,
+    errno.ENOENT,
+    errno.ENOSPC,
+    errno.EDQUOT,
+    errno.ENAMETOOLONG,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,6 +4,7 @@ A validator turns the option's text into a value or raises ``argparse.ArgumentTy
 expected; argparse then prints one ``usage`` line and ``error: argument --x: ...`` and exits 2 before any
 work starts. Use e.g. ``p.add_argument("--views", type=VIEWS)`` or ``type=int_in(1, 100, "views")``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,8 +57,11 @@ class _FloatIn:
             value = float(str(text).strip())
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not a number; expected {self.expected()}") from None
-        if not math.isfinite(value) or (self.lo is not None and value < self.lo) or (
-                self.hi is not None and value > self.hi):
+        if (
+            not math.isfinite(value)
+            or (self.lo is not None and value < self.lo)
+            or (self.hi is not None and value > self.hi)
+        ):
             raise argparse.ArgumentTypeError(f"{text} is out of range; expected {self.expected()}")
         return value
 

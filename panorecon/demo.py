@@ -1,5 +1,6 @@
 """The demo's pictures at a size a person can look at: held-out renders at 256 px beside the truth, and the
 trained Gaussians rendered back to a full panorama under the input (``panorecon demo``)."""
+
 from __future__ import annotations
 
 import math
@@ -11,8 +12,9 @@ import torch
 from .io import write_image
 
 
-def demo_pictures(scene, out, backend: str = "auto", size: int = 256, views: int = 3, fov_deg: float = 60.0,
-                  seed: int = 0) -> dict:
+def demo_pictures(
+    scene, out, backend: str = "auto", size: int = 256, views: int = 3, fov_deg: float = 60.0, seed: int = 0
+) -> dict:
     """From OUT/point_cloud.ply: OUT/renders/heldout_{size}_k.png (render | truth, ``size`` px tall; the first
     ``views`` held-out poses of a training run with this ``seed``) on scenes with a world, and
     OUT/panorama.png (input above, render from the centre below). Returns the panorama's PSNR (dB)."""
@@ -28,10 +30,27 @@ def demo_pictures(scene, out, backend: str = "auto", size: int = 256, views: int
             V = torch.tensor(v.camera.viewmat[None], dtype=torch.float32)
             K = torch.tensor(v.camera.K[None], dtype=torch.float32)
             with torch.no_grad():
-                img = rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K, size,
-                                size, sh_degree=model.sh_degree, backend=backend)[0][0].clamp(0, 1).numpy()
-            write_image(out / "renders" / f"heldout_{size}_{k}.png",
-                        (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8))
+                img = (
+                    rasterize(
+                        model.means,
+                        model.quats,
+                        model.scales(),
+                        model.opacities(),
+                        model.sh(),
+                        V,
+                        K,
+                        size,
+                        size,
+                        sh_degree=model.sh_degree,
+                        backend=backend,
+                    )[0][0]
+                    .clamp(0, 1)
+                    .numpy()
+                )
+            write_image(
+                out / "renders" / f"heldout_{size}_{k}.png",
+                (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8),
+            )
     pano = render_panorama(model, scene.height, backend=backend)
     truth = scene.rgb.astype(np.float32) / 255.0
     write_image(out / "panorama.png", (np.concatenate([truth, pano], 0) * 255).round().astype(np.uint8))

@@ -2,6 +2,7 @@
 
 Shared by every layer that holds torch tensors (fusion's CG solve, the trainer, the CLI), like ``io/``.
 """
+
 from __future__ import annotations
 
 import platform
@@ -49,7 +50,13 @@ def device_record(device: torch.device) -> dict:
     allocated by torch on that GPU since the last ``reset_peak_memory`` (MiB), or 'n/a: ...' on the CPU}."""
     if device.type == "cuda":
         index = device.index if device.index is not None else torch.cuda.current_device()
-        return {"device": f"cuda:{index}", "device_name": torch.cuda.get_device_name(index),
-                "peak_gpu_memory_mb": torch.cuda.max_memory_allocated(index) / 2**20}
-    return {"device": "cpu", "device_name": platform.processor() or platform.machine(),
-            "peak_gpu_memory_mb": "n/a: CPU run"}
+        return {
+            "device": f"cuda:{index}",
+            "device_name": torch.cuda.get_device_name(index),
+            "peak_gpu_memory_mb": torch.cuda.max_memory_allocated(index) / 2**20,
+        }
+    return {
+        "device": "cpu",
+        "device_name": platform.processor() or platform.machine(),
+        "peak_gpu_memory_mb": "n/a: CPU run",
+    }

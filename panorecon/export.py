@@ -13,6 +13,7 @@ from the ERP, written as images/view_00000.png (or .jpg).
 
 Everything is written into a temporary folder beside ``out_dir`` and renamed into place at the end.
 """
+
 from __future__ import annotations
 
 import json
@@ -46,8 +47,9 @@ def _write_colmap(root: Path, cameras: list[PinholeCamera], names: list[str], cl
 
     K, w, h = cameras[0].K, cameras[0].width, cameras[0].height
     rec = pycolmap.Reconstruction()
-    rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=1, model="PINHOLE", width=w, height=h,
-                                                    params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]]))
+    rec.add_camera_with_trivial_rig(
+        pycolmap.Camera(camera_id=1, model="PINHOLE", width=w, height=h, params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+    )
     for i, (cam, name) in enumerate(zip(cameras, names), start=1):
         pose = pycolmap.Rigid3d(pycolmap.Rotation3d(cam.viewmat[:3, :3]), cam.viewmat[:3, 3].copy())
         # COLMAP names images relative to the image folder (root/images)
@@ -63,10 +65,24 @@ def _write_nerfstudio(root: Path, cameras: list[PinholeCamera], names: list[str]
     import open3d as o3d
 
     K, w, h = cameras[0].K, cameras[0].width, cameras[0].height
-    meta = {"camera_model": "OPENCV", "fl_x": K[0, 0], "fl_y": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "w": w, "h": h,
-            "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "ply_file_path": "sparse_pc.ply",
-            "frames": [{"file_path": name, "transform_matrix": c2w_opengl(cam.viewmat).tolist()}
-                       for cam, name in zip(cameras, names)]}
+    meta = {
+        "camera_model": "OPENCV",
+        "fl_x": K[0, 0],
+        "fl_y": K[1, 1],
+        "cx": K[0, 2],
+        "cy": K[1, 2],
+        "w": w,
+        "h": h,
+        "k1": 0.0,
+        "k2": 0.0,
+        "p1": 0.0,
+        "p2": 0.0,
+        "ply_file_path": "sparse_pc.ply",
+        "frames": [
+            {"file_path": name, "transform_matrix": c2w_opengl(cam.viewmat).tolist()}
+            for cam, name in zip(cameras, names)
+        ],
+    }
     (root / "transforms.json").write_text(json.dumps(meta, indent=2))
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.xyz.astype(np.float64)))
     pc.colors = o3d.utility.Vector3dVector(np.clip(cloud.rgb, 0, 1).astype(np.float64))  # written as uchar
@@ -74,8 +90,17 @@ def _write_nerfstudio(root: Path, cameras: list[PinholeCamera], names: list[str]
         raise OSError(f"could not write {root / 'sparse_pc.ply'}")
 
 
-def export_scene(scene, cloud: PointCloud, views: int, fmt: str, out_dir: str | os.PathLike, view_size: int = 256,
-                 fov_deg: float = 60.0, image_format: str = "png", overwrite: bool = False) -> Path:
+def export_scene(
+    scene,
+    cloud: PointCloud,
+    views: int,
+    fmt: str,
+    out_dir: str | os.PathLike,
+    view_size: int = 256,
+    fov_deg: float = 60.0,
+    image_format: str = "png",
+    overwrite: bool = False,
+) -> Path:
     """Write ``views`` pseudo-label views (``view_size``² pixels, ``fov_deg`` square FOV, at the panorama
     centre) and ``cloud`` (metres, scene frame) in ``fmt`` ("colmap" | "nerfstudio") to ``out_dir`` -> out_dir.
 
@@ -116,21 +141,28 @@ def add_export_parser(subparsers) -> None:
     """Add ``panorecon export SCENE --source NAME --format colmap|nerfstudio --out DIR``."""
     from . import cli_types as T
 
-    ex = subparsers.add_parser("export", help="export pseudo-label views + a point source's cloud as a COLMAP model "
-                                              "or a nerfstudio dataset")
+    ex = subparsers.add_parser(
+        "export", help="export pseudo-label views + a point source's cloud as a COLMAP model or a nerfstudio dataset"
+    )
     ex.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
     ex.add_argument("--source", required=True, help="point source (see `panorecon sources list`)")
     ex.add_argument("--teacher", default=None, help="depth teacher, for sources that use one")
     ex.add_argument("--views", type=T.VIEWS, default=None, help="views of the point source")
     ex.add_argument("--format", dest="format", choices=FORMATS, required=True)
-    ex.add_argument("--out", required=True, type=T.out_dir,
-                    help="output folder (written to a temporary folder, then renamed)")
+    ex.add_argument(
+        "--out", required=True, type=T.out_dir, help="output folder (written to a temporary folder, then renamed)"
+    )
     ex.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
-    ex.add_argument("--labels", type=T.LABELS, default=120,
-                    help="pseudo-label views on a Fibonacci layout (default 120)")
+    ex.add_argument(
+        "--labels", type=T.LABELS, default=120, help="pseudo-label views on a Fibonacci layout (default 120)"
+    )
     ex.add_argument("--res", type=T.LABEL_RES, default=256, help="label view size in pixels (default 256)")
-    ex.add_argument("--fov", type=T.float_in(1.0, 170.0, "field of view"), default=60.0,
-                    help="label field of view in degrees (default 60)")
+    ex.add_argument(
+        "--fov",
+        type=T.float_in(1.0, 170.0, "field of view"),
+        default=60.0,
+        help="label field of view in degrees (default 60)",
+    )
     ex.add_argument("--image-format", choices=IMAGE_FORMATS, default="png")
     ex.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     ex.set_defaults(fn=run_export)
@@ -143,8 +175,11 @@ def run_export(args) -> int:
 
     scene = scene_from_args(args)
     cloud, report = run_source(scene, args.source, args.teacher, args.views)
-    out = export_scene(scene, cloud, args.labels, args.format, args.out, args.res, args.fov, args.image_format,
-                       args.overwrite)
-    print(f"{scene.name} / {args.source}: {len(cloud)} points, {args.labels} views {args.res}x{args.res} "
-          f"({args.format}) -> {out}")
+    out = export_scene(
+        scene, cloud, args.labels, args.format, args.out, args.res, args.fov, args.image_format, args.overwrite
+    )
+    print(
+        f"{scene.name} / {args.source}: {len(cloud)} points, {args.labels} views {args.res}x{args.res} "
+        f"({args.format}) -> {out}"
+    )
     return 0

@@ -8,6 +8,7 @@ mesh is reported: area-uniform samples of each mesh, exact point-to-triangle dis
 from a non-metric teacher is first scaled by the median factor its source report applied to its own metrics.
 pymeshlab is the ``mesh`` extra.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,8 +47,13 @@ def poisson_mesh(pc: PointCloud, depth: int = 9, trim: float = 0.1, centre=(0.0,
         raise PanoreconInputError(f"--trim {trim}: expected a density quantile in [0, 1)")
     xyz = pc.xyz.astype(np.float64)
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=xyz, v_normals_matrix=oriented_normals(xyz, centre),
-                               v_color_matrix=np.c_[np.clip(pc.rgb, 0, 1), np.ones(len(pc))].astype(np.float64)))
+    ms.add_mesh(
+        pymeshlab.Mesh(
+            vertex_matrix=xyz,
+            v_normals_matrix=oriented_normals(xyz, centre),
+            v_color_matrix=np.c_[np.clip(pc.rgb, 0, 1), np.ones(len(pc))].astype(np.float64),
+        )
+    )
     # one thread: its OpenMP workers spin, and on a shared or busy machine that made it 20x slower here
     ms.generate_surface_reconstruction_screened_poisson(depth=depth, preclean=True, threads=1)
     m = ms.current_mesh()
@@ -132,10 +138,12 @@ def cmd_mesh(args) -> int:
         else:
             true = scene.world.mesh()
             d = mesh_chamfer(v * scale, f, np.asarray(true.vertices), np.asarray(true.triangles))
-            line += (f"; to {name}'s true mesh" + (f" (mesh scaled by the source's median factor {scale:.4f})"
-                                                   if scale != 1.0 else "") +
-                     f": Chamfer {d['chamfer']:.4f} m (accuracy {d['accuracy']:.4f}, completeness "
-                     f"{d['completeness']:.4f}, incl. surfaces the panorama cannot see)")
+            line += (
+                f"; to {name}'s true mesh"
+                + (f" (mesh scaled by the source's median factor {scale:.4f})" if scale != 1.0 else "")
+                + f": Chamfer {d['chamfer']:.4f} m (accuracy {d['accuracy']:.4f}, completeness "
+                f"{d['completeness']:.4f}, incl. surfaces the panorama cannot see)"
+            )
     print(line)
     return 0
 
@@ -147,6 +155,10 @@ def add_mesh_parser(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--depth", type=int, default=9, help="Poisson octree depth (default 9)")
     m.add_argument("--trim", type=float, default=0.1, help="drop vertices below this density quantile (default 0.1)")
     m.add_argument("--centre", default="0,0,0", help="panorama centre x,y,z in metres; normals face it")
-    m.add_argument("--scene", default=None, help="synthetic scene for the Chamfer to its true mesh, "
-                         "cloud taken as metric (default: the scene and scale in the cloud's *_report.json)")
+    m.add_argument(
+        "--scene",
+        default=None,
+        help="synthetic scene for the Chamfer to its true mesh, "
+        "cloud taken as metric (default: the scene and scale in the cloud's *_report.json)",
+    )
     m.set_defaults(fn=cmd_mesh)

@@ -5,6 +5,7 @@ A 3DGS ``point_cloud.ply`` is shown with viser's Gaussian-splat node, any other 
 perspective views of the panorama (Fibonacci / icosahedral ... layout, from ``*_report.json``) and, from
 ``cameras.json``, the pseudo-label and held-out cameras as frustums. viser is the ``view`` extra.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -92,8 +93,12 @@ def gaussian_arrays(path: Path) -> dict[str, np.ndarray]:
         M = quat_to_rotmat(m.quats) * m.scales()[:, None, :]  # R diag(s)
         cov = M @ M.transpose(1, 2)
         rgb = (0.5 + C0 * m.sh0[:, 0]).clamp(0, 1)
-        return {"centers": m.means.numpy(), "covariances": cov.numpy(), "rgbs": rgb.numpy(),
-                "opacities": m.opacities()[:, None].numpy()}
+        return {
+            "centers": m.means.numpy(),
+            "covariances": cov.numpy(),
+            "rgbs": rgb.numpy(),
+            "opacities": m.opacities()[:, None].numpy(),
+        }
 
 
 def _wxyz(rotation: np.ndarray) -> np.ndarray:
@@ -122,16 +127,29 @@ def serve(path: str | Path, port: int = 8080, host: str = "0.0.0.0", point_size:
         server.scene.add_gaussian_splats(f"/gaussians/{p.stem}", **gaussian_arrays(p))
     for p in items.clouds:
         pc = PointCloud.load_ply(p)
-        server.scene.add_point_cloud(f"/clouds/{p.stem}", pc.xyz, (np.clip(pc.rgb, 0, 1) * 255).astype(np.uint8),
-                                     point_size=point_size, visible=not items.gaussians)
+        server.scene.add_point_cloud(
+            f"/clouds/{p.stem}",
+            pc.xyz,
+            (np.clip(pc.rgb, 0, 1) * 255).astype(np.uint8),
+            point_size=point_size,
+            visible=not items.gaussians,
+        )
     for group, frustums in items.frustums.items():
         colour = next((c for k, c in COLOURS.items() if k in group), COLOURS["source"])
         for k, f in enumerate(frustums):
             c2w = f.viewmat[:3, :3].T
             # the dense pseudo-label cameras (120+) would hide the scene: listed, off until ticked in the tree
-            server.scene.add_camera_frustum(f"/cameras/{group.replace(' ', '_')}/{k}", fov=f.fov_y, aspect=f.aspect,
-                                            scale=0.12, thickness=0.004, color=colour, wxyz=_wxyz(c2w),
-                                            position=-c2w @ f.viewmat[:3, 3], visible=group != "pseudo-label")
+            server.scene.add_camera_frustum(
+                f"/cameras/{group.replace(' ', '_')}/{k}",
+                fov=f.fov_y,
+                aspect=f.aspect,
+                scale=0.12,
+                thickness=0.004,
+                color=colour,
+                wxyz=_wxyz(c2w),
+                position=-c2w @ f.viewmat[:3, 3],
+                visible=group != "pseudo-label",
+            )
     return server
 
 

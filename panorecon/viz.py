@@ -1,4 +1,5 @@
 """Point-cloud inspection with pyvista: off-screen screenshots, or an interactive window."""
+
 from __future__ import annotations
 
 import os
@@ -29,8 +30,14 @@ def _headless_gl() -> None:
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 
-def _plotter(pc: PointCloud, scalar: str | None, point_size: float, off_screen: bool, clip_z: float | None = None,
-             window_size=(1280, 800)):
+def _plotter(
+    pc: PointCloud,
+    scalar: str | None,
+    point_size: float,
+    off_screen: bool,
+    clip_z: float | None = None,
+    window_size=(1280, 800),
+):
     if off_screen:
         _headless_gl()
     import pyvista as pv
@@ -46,7 +53,9 @@ def _plotter(pc: PointCloud, scalar: str | None, point_size: float, off_screen: 
     else:
         scalars = point_scalars(pc)
         if scalar not in scalars:
-            raise PanoreconInputError(f"--color {scalar!r}: the cloud has no such per-point scalar; it has {sorted(scalars) or 'none'}")
+            raise PanoreconInputError(
+                f"--color {scalar!r}: the cloud has no such per-point scalar; it has {sorted(scalars) or 'none'}"
+            )
         cloud[scalar] = scalars[scalar]
         plotter.add_mesh(cloud, scalars=scalar, cmap="viridis", point_size=point_size, show_scalar_bar=True)
     plotter.set_background("white")
@@ -57,8 +66,14 @@ def _plotter(pc: PointCloud, scalar: str | None, point_size: float, off_screen: 
     return plotter
 
 
-def screenshot(pc: PointCloud, out: str | os.PathLike, scalar: str | None = None, point_size: float = 2.0,
-               clip_z: float | None = None, window_size=(1280, 800)) -> Path:
+def screenshot(
+    pc: PointCloud,
+    out: str | os.PathLike,
+    scalar: str | None = None,
+    point_size: float = 2.0,
+    clip_z: float | None = None,
+    window_size=(1280, 800),
+) -> Path:
     """Render the cloud off-screen to a PNG of ``window_size`` (width, height) pixels (atomically); colour by RGB
     or by the named scalar; points above ``clip_z`` (metres) are not drawn."""
     if len(pc) == 0:

@@ -4,6 +4,7 @@
 
 needs Debian's chromium (scripts/setup.sh dev) and playwright; software WebGL (SwiftShader).
 """
+
 import sys
 import time
 from pathlib import Path
@@ -12,8 +13,14 @@ from playwright.sync_api import sync_playwright
 
 from panorecon.viewer import serve
 
-ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-        "--disable-background-networking"]
+ARGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+]
 
 
 def main(run: str, ablation: str, out: str) -> None:

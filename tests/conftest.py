@@ -1,4 +1,5 @@
 """Shared fixtures: the real data folder, dtypes, and a fixed hypothesis profile for CI."""
+
 from __future__ import annotations
 
 import os
@@ -14,7 +15,9 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-settings.register_profile("ci", max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
+settings.register_profile(
+    "ci", max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True
+)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
@@ -60,9 +63,18 @@ def float_dtype(request):
 
 
 CHROMIUM = Path("/usr/bin/chromium")  # Debian's package, installed by `scripts/setup.sh dev`
-CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
-                 "--enable-unsafe-swiftshader", "--disable-background-networking", "--disable-extensions",
-                 "--disable-component-update", "--disable-default-apps", "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+    "--disable-extensions",
+    "--disable-component-update",
+    "--disable-default-apps",
+    "--no-first-run",
+]
 
 
 @pytest.fixture(scope="session")

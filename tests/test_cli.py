@@ -1,4 +1,5 @@
 """The `panorecon` command end to end on small sizes (in-process: main() returns the exit code)."""
+
 import json
 
 import numpy as np
@@ -11,7 +12,18 @@ from panorecon.io import read_image
 def test_scenes_list_shows_synthetic_and_real(capsys):
     assert main(["scenes", "list"]) == 0
     out = capsys.readouterr().out
-    for name in ("bedroom", "bathroom", "mountain", "grassland", "beach", "library", "exhibition-hall", "city-plaza", "hohonet", "py360-demo"):
+    for name in (
+        "bedroom",
+        "bathroom",
+        "mountain",
+        "grassland",
+        "beach",
+        "library",
+        "exhibition-hall",
+        "city-plaza",
+        "hohonet",
+        "py360-demo",
+    ):
         assert name in out
     assert out.count("synthetic") >= 8
 
@@ -29,13 +41,16 @@ def test_render_gt_cloud_inspect(tmp_path, capsys):
     assert shot.std() > 5  # not a blank image
 
 
-@pytest.mark.parametrize("argv,needle", [
-    (["render", "atlantis", "--out", "X"], "unknown scene 'atlantis'"),
-    (["render", "bedroom", "--out", "X", "--width", "20000"], "--width: 20000 is out of range"),
-    (["render", "missing.png", "--out", "X"], "missing.png: no such file"),
-    (["gt-cloud", "py360-demo", "--out", "X/c.ply"], "has no depth"),
-    (["inspect", "nothing.ply", "--screenshot", "X/s.png"], "nothing.ply"),
-])
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["render", "atlantis", "--out", "X"], "unknown scene 'atlantis'"),
+        (["render", "bedroom", "--out", "X", "--width", "20000"], "--width: 20000 is out of range"),
+        (["render", "missing.png", "--out", "X"], "missing.png: no such file"),
+        (["gt-cloud", "py360-demo", "--out", "X/c.ply"], "has no depth"),
+        (["inspect", "nothing.ply", "--screenshot", "X/s.png"], "nothing.ply"),
+    ],
+)
 def test_bad_input_gives_one_clear_error_and_writes_nothing(tmp_path, monkeypatch, capsys, argv, needle):
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 2
@@ -58,14 +73,33 @@ def test_points_writes_cloud_and_report(tmp_path, capsys):
 
     from panorecon.geometry import PointCloud
 
-    argv = ["points", "bedroom", "--source", "fibonacci", "--teacher", "sim:relative", "--views", "12", "--width", "128",
-            "--out", str(tmp_path / "c.ply"), "--report", str(tmp_path / "r.json")]
+    argv = [
+        "points",
+        "bedroom",
+        "--source",
+        "fibonacci",
+        "--teacher",
+        "sim:relative",
+        "--views",
+        "12",
+        "--width",
+        "128",
+        "--out",
+        str(tmp_path / "c.ply"),
+        "--report",
+        str(tmp_path / "r.json"),
+    ]
     assert main(argv) == 0
     rep = json.loads((tmp_path / "r.json").read_text())
     for key in ("source", "teacher", "views", "seconds", "peak_rss_mb", "depth", "points"):
         assert key in rep
     assert rep["views"] == 12 and "total" in rep["seconds"]
-    assert {"abs_rel", "rmse", "delta1"} <= set(rep["depth"]) and {"count", "chamfer", "accuracy", "completeness"} <= set(rep["points"])
+    assert {"abs_rel", "rmse", "delta1"} <= set(rep["depth"]) and {
+        "count",
+        "chamfer",
+        "accuracy",
+        "completeness",
+    } <= set(rep["points"])
     assert len(PointCloud.load_ply(tmp_path / "c.ply")) == rep["points"]["count"]
     assert main(["points", "bedroom", "--source", "fibonacci", "--out", str(tmp_path / "x.ply")]) == 2
     assert "needs --teacher" in capsys.readouterr().err
@@ -82,9 +116,20 @@ def test_demo_runs_the_main_job(tmp_path, capfd, monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--width", "128", "--iters", "10", "--res", "32"]) == 0
-    for name in ("pano.png", "distance.npy", "mask.png", "gt_cloud.ply", "gt_cloud.png", "fibonacci_cloud.ply",
-                 "fibonacci_report.json", "fibonacci_cloud.png", "point_cloud.ply", "metrics.json", "renders/label_0.png",
-                 "cameras.json"):
+    for name in (
+        "pano.png",
+        "distance.npy",
+        "mask.png",
+        "gt_cloud.ply",
+        "gt_cloud.png",
+        "fibonacci_cloud.ply",
+        "fibonacci_report.json",
+        "fibonacci_cloud.png",
+        "point_cloud.ply",
+        "metrics.json",
+        "renders/label_0.png",
+        "cameras.json",
+    ):
         assert (out / name).is_file(), name
     # pictures a person can look at: held-out renders 256 px tall, the panorama rendered back under the input
     assert Image.open(out / "renders" / "heldout_256_0.png").size == (512, 256)
@@ -109,8 +154,25 @@ def test_demo_runs_the_main_job(tmp_path, capfd, monkeypatch):
 def test_train_command(tmp_path, capsys):
     import json
 
-    argv = ["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--width", "128", "--iters", "20",
-            "--res", "32", "--labels", "16", "--no-progress", "--out", str(tmp_path / "t")]
+    argv = [
+        "train",
+        "bedroom",
+        "--source",
+        "fibonacci",
+        "--teacher",
+        "sim:clean",
+        "--width",
+        "128",
+        "--iters",
+        "20",
+        "--res",
+        "32",
+        "--labels",
+        "16",
+        "--no-progress",
+        "--out",
+        str(tmp_path / "t"),
+    ]
     assert main(argv) == 0
     m = json.loads((tmp_path / "t" / "metrics.json").read_text())
     assert m["iterations"] == 20 and "psnr" in m["pseudo-label"] and "psnr" in m["held-out"]
@@ -118,14 +180,17 @@ def test_train_command(tmp_path, capsys):
 
 
 @pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has CUDA")
-@pytest.mark.parametrize("argv,needle", [
-    (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "cuda"], "--device cuda"),
-    (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--backend", "gsplat"], "--backend gsplat"),
-    (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "gpu"], "--device 'gpu'"),
-    (["points", "bedroom", "--source", "fibonacci", "--out", "X/c.ply", "--device", "cuda"], "--device cuda"),
-    (["ablate", "eval/suites/quick.toml", "--out", "X", "--device", "cuda"], "--device cuda"),
-    (["bench", "--quick", "--device", "cuda", "--out", "X/b.json"], "--device cuda"),
-])
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "cuda"], "--device cuda"),
+        (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--backend", "gsplat"], "--backend gsplat"),
+        (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "gpu"], "--device 'gpu'"),
+        (["points", "bedroom", "--source", "fibonacci", "--out", "X/c.ply", "--device", "cuda"], "--device cuda"),
+        (["ablate", "eval/suites/quick.toml", "--out", "X", "--device", "cuda"], "--device cuda"),
+        (["bench", "--quick", "--device", "cuda", "--out", "X/b.json"], "--device cuda"),
+    ],
+)
 def test_a_device_or_backend_this_machine_lacks_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys, argv, needle):
     monkeypatch.chdir(tmp_path)
     if argv[0] == "ablate":
@@ -148,9 +213,14 @@ def test_resolve_device():
     assert device_record(torch.device("cpu"))["peak_gpu_memory_mb"].startswith("n/a")
 
 
-@pytest.mark.parametrize("teacher, needle", [("sim:relative", "has no true depth"),
-                                             ("file:zero.npy", "zero.npy: holds no valid depth"),
-                                             ("file:zero.npy?scale=", "scale='' is not a number")])
+@pytest.mark.parametrize(
+    "teacher, needle",
+    [
+        ("sim:relative", "has no true depth"),
+        ("file:zero.npy", "zero.npy: holds no valid depth"),
+        ("file:zero.npy?scale=", "scale='' is not a number"),
+    ],
+)
 def test_teacher_mistakes_are_one_line_and_write_nothing(tmp_path, monkeypatch, capsys, teacher, needle):
     from panorecon.io import write_image
 
@@ -158,8 +228,9 @@ def test_teacher_mistakes_are_one_line_and_write_nothing(tmp_path, monkeypatch, 
     write_image(tmp_path / "pano.png", np.zeros((32, 64, 3), np.uint8))
     np.save(tmp_path / "zero.npy", np.zeros((32, 64)))
     scene = "pano.png" if teacher.startswith("sim") else "bedroom"
-    assert main(["points", scene, "--source", "fibonacci", "--teacher", teacher, "--width", "64",
-                 "--out", "X/c.ply"]) == 2
+    assert (
+        main(["points", scene, "--source", "fibonacci", "--teacher", teacher, "--width", "64", "--out", "X/c.ply"]) == 2
+    )
     err = capsys.readouterr().err
     assert needle in err and err.count("\n") == 1 and not (tmp_path / "X").exists()
 

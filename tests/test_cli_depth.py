@@ -1,4 +1,5 @@
 """`--depth` on the commands that take a SCENE: a real panorama with true depth is scored like a synthetic one."""
+
 import json
 
 import cv2
@@ -18,8 +19,9 @@ def pano(tmp_path_factory):
     d = tmp_path_factory.mktemp("capture")
     s = load_scene("bedroom", WIDTH)
     write_image(d / "pano.png", s.rgb)
-    cv2.imwrite(str(d / "depth_mm.png"), np.where(np.isfinite(s.distance), np.round(s.distance * 1000), 0)
-                .astype(np.uint16))
+    cv2.imwrite(
+        str(d / "depth_mm.png"), np.where(np.isfinite(s.distance), np.round(s.distance * 1000), 0).astype(np.uint16)
+    )
     np.save(d / "distance.npy", s.distance)
     return d
 
@@ -32,9 +34,26 @@ def test_every_scene_command_takes_the_depth_options():
 
 
 def test_points_on_a_real_panorama_with_true_depth(tmp_path, pano, capsys):
-    argv = ["points", str(pano / "pano.png"), "--depth", str(pano / "depth_mm.png"), "--depth-scale", "0.001",
-            "--source", "fibonacci", "--teacher", "sim:relative", "--views", "12", "--out", str(tmp_path / "c.ply"),
-            "--report", str(tmp_path / "r.json"), "--distance-out", str(tmp_path / "d.npy")]
+    argv = [
+        "points",
+        str(pano / "pano.png"),
+        "--depth",
+        str(pano / "depth_mm.png"),
+        "--depth-scale",
+        "0.001",
+        "--source",
+        "fibonacci",
+        "--teacher",
+        "sim:relative",
+        "--views",
+        "12",
+        "--out",
+        str(tmp_path / "c.ply"),
+        "--report",
+        str(tmp_path / "r.json"),
+        "--distance-out",
+        str(tmp_path / "d.npy"),
+    ]
     assert main(argv) == 0
     rep = json.loads((tmp_path / "r.json").read_text())
     assert isinstance(rep["depth"]["abs_rel"], float) and rep["depth"]["abs_rel"] < 0.1
@@ -52,24 +71,40 @@ def test_points_on_a_real_panorama_with_true_depth(tmp_path, pano, capsys):
 
 
 def test_npy_default_scale_and_gt_cloud(tmp_path, pano, capsys):
-    assert main(["gt-cloud", str(pano / "pano.png"), "--depth", str(pano / "distance.npy"),
-                 "--out", str(tmp_path / "gt.ply")]) == 0
+    assert (
+        main(
+            [
+                "gt-cloud",
+                str(pano / "pano.png"),
+                "--depth",
+                str(pano / "distance.npy"),
+                "--out",
+                str(tmp_path / "gt.ply"),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "not ground truth" not in out and f"{(WIDTH // 2) * WIDTH} points" in out
-    assert main(["render", str(pano / "pano.png"), "--depth", str(pano / "depth_mm.png"),
-                 "--out", str(tmp_path / "r")]) == 0
+    assert (
+        main(["render", str(pano / "pano.png"), "--depth", str(pano / "depth_mm.png"), "--out", str(tmp_path / "r")])
+        == 0
+    )
     np.testing.assert_allclose(np.load(tmp_path / "r" / "distance.npy"), np.load(pano / "distance.npy"), atol=5e-4)
 
 
-@pytest.mark.parametrize("case,needle", [
-    ("size", "expected the same size"),
-    ("invalid", "no valid pixel"),
-    ("8bit", "8-bit; expected 16-bit"),
-    ("exr-scene", "is read as a depth file"),
-    ("synthetic", "is synthetic and already has its true depth"),
-    ("scale-alone", "--depth-scale/--depth-kind without --depth"),
-    ("kind-alone", "--depth-scale/--depth-kind without --depth"),
-])
+@pytest.mark.parametrize(
+    "case,needle",
+    [
+        ("size", "expected the same size"),
+        ("invalid", "no valid pixel"),
+        ("8bit", "8-bit; expected 16-bit"),
+        ("exr-scene", "is read as a depth file"),
+        ("synthetic", "is synthetic and already has its true depth"),
+        ("scale-alone", "--depth-scale/--depth-kind without --depth"),
+        ("kind-alone", "--depth-scale/--depth-kind without --depth"),
+    ],
+)
 def test_broken_inputs_are_one_line_exit_2(tmp_path, pano, capsys, case, needle):
     scene, depth = str(pano / "pano.png"), tmp_path / "d.png"
     if case == "size":
@@ -109,6 +144,19 @@ def test_depth_kind_z(tmp_path, pano):
 
     d = np.load(pano / "distance.npy")
     np.save(tmp_path / "z.npy", d / erp_z_to_distance_factor(*d.shape))
-    assert main(["render", str(pano / "pano.png"), "--depth", str(tmp_path / "z.npy"), "--depth-kind", "z",
-                 "--out", str(tmp_path / "r")]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(pano / "pano.png"),
+                "--depth",
+                str(tmp_path / "z.npy"),
+                "--depth-kind",
+                "z",
+                "--out",
+                str(tmp_path / "r"),
+            ]
+        )
+        == 0
+    )
     np.testing.assert_allclose(np.load(tmp_path / "r" / "distance.npy"), d, rtol=1e-6)

@@ -1,26 +1,38 @@
 """Numeric and path options are validated at the parser: one line, exit 2, before any work."""
+
 import argparse
 
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from panorecon import cli_types as T
 from panorecon.cli import build_parser, main
 
-BOUNDS = {"--views": (1, 1000), "--view-size": (16, 4096), "--width": (16, 16384), "--iters": (1, 10_000_000),
-          "--res": (8, 4096), "--labels": (1, 100_000), "--seed": (0, 2**32 - 1), "--jobs": (1, 1024)}
-COMMAND = {"--views": ["points", "bedroom", "--source", "fibonacci", "--out", "c.ply"],
-           "--view-size": ["points", "bedroom", "--source", "fibonacci", "--out", "c.ply"],
-           "--width": ["render", "bedroom", "--out", "o"],
-           "--iters": ["train", "bedroom", "--source", "random", "--out", "o"],
-           "--res": ["train", "bedroom", "--source", "random", "--out", "o"],
-           "--labels": ["train", "bedroom", "--source", "random", "--out", "o"],
-           "--seed": ["train", "bedroom", "--source", "random", "--out", "o"],
-           "--jobs": ["ablate", "s.toml", "--out", "o"]}
+BOUNDS = {
+    "--views": (1, 1000),
+    "--view-size": (16, 4096),
+    "--width": (16, 16384),
+    "--iters": (1, 10_000_000),
+    "--res": (8, 4096),
+    "--labels": (1, 100_000),
+    "--seed": (0, 2**32 - 1),
+    "--jobs": (1, 1024),
+}
+COMMAND = {
+    "--views": ["points", "bedroom", "--source", "fibonacci", "--out", "c.ply"],
+    "--view-size": ["points", "bedroom", "--source", "fibonacci", "--out", "c.ply"],
+    "--width": ["render", "bedroom", "--out", "o"],
+    "--iters": ["train", "bedroom", "--source", "random", "--out", "o"],
+    "--res": ["train", "bedroom", "--source", "random", "--out", "o"],
+    "--labels": ["train", "bedroom", "--source", "random", "--out", "o"],
+    "--seed": ["train", "bedroom", "--source", "random", "--out", "o"],
+    "--jobs": ["ablate", "s.toml", "--out", "o"],
+}
 
 
 @pytest.mark.parametrize("option", sorted(BOUNDS))
-@given(value=st.integers(min_value=-2**40, max_value=2**40))
+@given(value=st.integers(min_value=-(2**40), max_value=2**40))
 def test_integer_options_are_accepted_exactly_in_their_range(option, value):
     lo, hi = BOUNDS[option]
     ok = lo <= value <= hi and not (option == "--width" and value % 2)
@@ -54,20 +66,34 @@ def test_float_options_refuse_nan_inf_and_out_of_range(value):
         assert out == value
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["points", "bedroom", "--source", "fibonacci", "--views", "0", "--out", "X/c.ply"], "--views: 0 is out of range"),
-    (["points", "bedroom", "--source", "fibonacci", "--view-size", "1", "--out", "X/c.ply"], "--view-size: 1 is out"),
-    (["points", "bedroom", "--source", "fibonacci", "--view-size", "100000", "--out", "X/c.ply"], "--view-size"),
-    (["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--iters", "-3", "--out", "X"], "--iters"),
-    (["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--res", "abc", "--out", "X"],
-     "'abc' is not an integer"),
-    (["train", "bedroom", "--source", "fibonacci", "--labels", "0", "--out", "X"], "--labels"),
-    (["train", "bedroom", "--source", "fibonacci", "--seed", "-1", "--out", "X"], "--seed"),
-    (["ablate", "s.toml", "--out", "X", "--jobs", "0"], "--jobs: 0"),
-    (["train", "bedroom", "--source", "fibonacci", "--out", "afile"], "afile: exists and is not a folder"),
-    (["points", "bedroom", "--source", "fibonacci", "--out", "afile/c.ply"], "is not a folder"),
-    (["ablate", "s.toml", "--out", "afile"], "afile: exists and is not a folder"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (
+            ["points", "bedroom", "--source", "fibonacci", "--views", "0", "--out", "X/c.ply"],
+            "--views: 0 is out of range",
+        ),
+        (
+            ["points", "bedroom", "--source", "fibonacci", "--view-size", "1", "--out", "X/c.ply"],
+            "--view-size: 1 is out",
+        ),
+        (["points", "bedroom", "--source", "fibonacci", "--view-size", "100000", "--out", "X/c.ply"], "--view-size"),
+        (
+            ["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--iters", "-3", "--out", "X"],
+            "--iters",
+        ),
+        (
+            ["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--res", "abc", "--out", "X"],
+            "'abc' is not an integer",
+        ),
+        (["train", "bedroom", "--source", "fibonacci", "--labels", "0", "--out", "X"], "--labels"),
+        (["train", "bedroom", "--source", "fibonacci", "--seed", "-1", "--out", "X"], "--seed"),
+        (["ablate", "s.toml", "--out", "X", "--jobs", "0"], "--jobs: 0"),
+        (["train", "bedroom", "--source", "fibonacci", "--out", "afile"], "afile: exists and is not a folder"),
+        (["points", "bedroom", "--source", "fibonacci", "--out", "afile/c.ply"], "is not a folder"),
+        (["ablate", "s.toml", "--out", "afile"], "afile: exists and is not a folder"),
+    ],
+)
 def test_bad_options_are_one_line_exit_2_and_write_nothing(tmp_path, monkeypatch, capsys, argv, needle):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "afile").write_text("x")

@@ -1,4 +1,5 @@
 """Export to COLMAP and nerfstudio: the files read back with the same cameras, poses and points."""
+
 from __future__ import annotations
 
 import argparse
@@ -76,8 +77,24 @@ def test_refuses_non_empty_out(scene, cloud, tmp_path):
 def test_export_command(tmp_path, capsys):
     parser = argparse.ArgumentParser()
     add_export_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["export", "bedroom", "--source", "random", "--format", "nerfstudio", "--width", "128",
-                              "--labels", "4", "--res", "32", "--out", str(tmp_path / "e")])
+    args = parser.parse_args(
+        [
+            "export",
+            "bedroom",
+            "--source",
+            "random",
+            "--format",
+            "nerfstudio",
+            "--width",
+            "128",
+            "--labels",
+            "4",
+            "--res",
+            "32",
+            "--out",
+            str(tmp_path / "e"),
+        ]
+    )
     assert args.fn(args) == 0
     assert "100000 points" in capsys.readouterr().out
     assert len(json.loads((tmp_path / "e" / "transforms.json").read_text())["frames"]) == 4

@@ -1,5 +1,6 @@
 """A real SIGKILL of `panorecon train` and of `panorecon ablate` (with its workers) mid-run, resumed to the
 same metrics as an uninterrupted run. Subprocesses in their own session; the whole group is killed."""
+
 import json
 import os
 import signal
@@ -14,8 +15,27 @@ import pytest
 pytestmark = pytest.mark.slow  # 0.5 to 3 min each on the shared 2-core machine
 
 ROOT = Path(__file__).resolve().parents[1]
-TRAIN = ["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:clean", "--views", "8", "--width", "64",
-         "--iters", "60", "--res", "24", "--labels", "8", "--checkpoint-every", "5", "--no-progress"]
+TRAIN = [
+    "train",
+    "bedroom",
+    "--source",
+    "fibonacci",
+    "--teacher",
+    "sim:clean",
+    "--views",
+    "8",
+    "--width",
+    "64",
+    "--iters",
+    "60",
+    "--res",
+    "24",
+    "--labels",
+    "8",
+    "--checkpoint-every",
+    "5",
+    "--no-progress",
+]
 SUITE = """
 title = "kill"
 rows = ["source"]
@@ -38,8 +58,16 @@ source = ["fibonacci"]
 
 def _cli(argv, **kw):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen([sys.executable, "-m", "panorecon.cli", *argv], env=env, cwd=ROOT, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "panorecon.cli", *argv],
+        env=env,
+        cwd=ROOT,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+        **kw,
+    )
 
 
 def _kill_when(proc, ready, timeout=300.0):
@@ -99,8 +127,20 @@ def test_two_ablate_runs_on_one_cache_compute_each_stage_once(tmp_path):
     cache = StageCache(tmp_path / "cache")
     with cache.lock("points", row.points_key()):
         inode = os.stat(cache.folder("points", row.points_key()) / ".lock").st_ino
-        runs = [_cli(["ablate", str(tmp_path / "s.toml"), "--out", str(tmp_path / name), "--cache",
-                      str(tmp_path / "cache"), "--no-progress"]) for name in ("a", "b")]
+        runs = [
+            _cli(
+                [
+                    "ablate",
+                    str(tmp_path / "s.toml"),
+                    "--out",
+                    str(tmp_path / name),
+                    "--cache",
+                    str(tmp_path / "cache"),
+                    "--no-progress",
+                ]
+            )
+            for name in ("a", "b")
+        ]
         t = time.monotonic()
         while sum(f":{inode} " in ln and "->" in ln for ln in Path("/proc/locks").read_text().splitlines()) < 2:
             assert all(r.poll() is None for r in runs) and time.monotonic() - t < 300

@@ -1,4 +1,5 @@
 """`panorecon mesh`: normals towards the centre, a Poisson surface close to the truth, its Chamfer, bad input."""
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -75,7 +76,21 @@ def test_chamfer_to_the_true_mesh_uses_the_source_reports_scale(tmp_path, capsys
     (tmp_path / "x_report.json").write_text(json.dumps({"scene": "bedroom", "points": {"scale_applied": 0.5}}))
     accuracy = []
     for extra in ([], ["--scene", "bedroom"]):
-        assert main(["mesh", str(tmp_path / "x_cloud.ply"), "--out", str(tmp_path / "m.ply"), "--depth", "6",
-                     "--centre", "0,0,0"] + extra) == 0
+        assert (
+            main(
+                [
+                    "mesh",
+                    str(tmp_path / "x_cloud.ply"),
+                    "--out",
+                    str(tmp_path / "m.ply"),
+                    "--depth",
+                    "6",
+                    "--centre",
+                    "0,0,0",
+                ]
+                + extra
+            )
+            == 0
+        )
         accuracy.append(float(re.search(r"accuracy ([0-9.]+)", capsys.readouterr().out).group(1)))
     assert accuracy[0] < 0.05 < 0.5 < accuracy[1], accuracy

@@ -1,4 +1,5 @@
 """The notebooks in notebooks/ run top to bottom (nbclient, the python3 kernel of this environment)."""
+
 from pathlib import Path
 
 import nbformat

@@ -1,4 +1,5 @@
 """`panorecon view`: what a run folder shows, the Gaussians' covariances, and the page in a real browser."""
+
 import json
 import math
 import socket
@@ -31,18 +32,30 @@ def run_folder(tmp_path_factory):
     rng = np.random.default_rng(0)
     n = 300
     quats = torch.tensor(rng.normal(size=(n, 4)), dtype=torch.float32)
-    model = GaussianModel(torch.tensor(rng.normal(size=(n, 3)) * 0.5, dtype=torch.float32), quats,
-                          torch.tensor(np.log(rng.uniform(0.05, 0.2, (n, 3))), dtype=torch.float32),
-                          torch.full((n,), 3.0), torch.tensor(rng.normal(size=(n, 1, 3)), dtype=torch.float32),
-                          torch.zeros(n, 3, 3))
+    model = GaussianModel(
+        torch.tensor(rng.normal(size=(n, 3)) * 0.5, dtype=torch.float32),
+        quats,
+        torch.tensor(np.log(rng.uniform(0.05, 0.2, (n, 3))), dtype=torch.float32),
+        torch.full((n,), 3.0),
+        torch.tensor(rng.normal(size=(n, 1, 3)), dtype=torch.float32),
+        torch.zeros(n, 3, 3),
+    )
     save_ply(model, d / "point_cloud.ply")
     PointCloud(rng.normal(size=(400, 3)), rng.uniform(size=(400, 3))).save_ply(d / "fibonacci_cloud.ply")
-    (d / "fibonacci_report.json").write_text(json.dumps({"source": "fibonacci", "views": 20, "fov_deg": 89.4,
-                                                         "view_size": 64}))
+    (d / "fibonacci_report.json").write_text(
+        json.dumps({"source": "fibonacci", "views": 20, "fov_deg": 89.4, "view_size": 64})
+    )
     cams = [centred_camera(np.array([1.0, 0, 0]), 32, 60.0), centred_camera(np.array([0, 1.0, 0.2]), 32, 60.0)]
-    (d / "cameras.json").write_text(json.dumps({
-        "pseudo-label": [{"viewmat": c.viewmat.tolist(), "K": c.K.tolist(), "width": 32, "height": 32} for c in cams],
-        "held-out": [{"viewmat": cams[0].viewmat.tolist(), "K": cams[0].K.tolist(), "width": 32, "height": 32}]}))
+    (d / "cameras.json").write_text(
+        json.dumps(
+            {
+                "pseudo-label": [
+                    {"viewmat": c.viewmat.tolist(), "K": c.K.tolist(), "width": 32, "height": 32} for c in cams
+                ],
+                "held-out": [{"viewmat": cams[0].viewmat.tolist(), "K": cams[0].K.tolist(), "width": 32, "height": 32}],
+            }
+        )
+    )
     return d, model
 
 
@@ -72,9 +85,13 @@ def test_gaussian_arrays_match_a_per_gaussian_loop(run_folder):
     a = gaussian_arrays(d / "point_cloud.ply")
     for i in range(0, len(model), 37):
         w, x, y, z = (model.quats[i] / model.quats[i].norm()).detach().tolist()
-        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        R = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
         cov = R @ np.diag(np.exp(model.log_scales[i].detach().double().numpy()) ** 2) @ R.T
         np.testing.assert_allclose(a["covariances"][i], cov, rtol=1e-4, atol=1e-8)
         rgb = np.clip(0.5 + 0.28209479177387814 * model.sh0[i, 0].detach().numpy(), 0, 1)
@@ -86,9 +103,13 @@ def test_gaussian_arrays_match_a_per_gaussian_loop(run_folder):
 def test_frustum_rotation_is_the_camera_to_world_rotation():
     c = centred_camera(np.array([0.3, -1.0, 0.5]), 16, 60.0)
     w, x, y, z = _wxyz(c.rotation_c2w)
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     np.testing.assert_allclose(R[:, 2], c.forward, atol=1e-9)  # viser frustums look along their +z (OpenCV)
 
 
@@ -97,8 +118,12 @@ def test_cli_prints_the_url_and_serves_the_page(run_folder):
 
     d, _ = run_folder
     port = _free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "panorecon.cli", "view", str(d), "--port", str(port),
-                             "--host", "127.0.0.1"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "panorecon.cli", "view", str(d), "--port", str(port), "--host", "127.0.0.1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         lines = []
         while not lines or not lines[-1].startswith("panorecon view:"):  # viser prints its own banner first

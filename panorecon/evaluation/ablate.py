@@ -7,6 +7,7 @@ is its own) on a local process pool of ``jobs`` workers, or on a Dask cluster (`
 ``LocalCluster`` of ``jobs`` workers, or an existing scheduler by address); there worker processes are reused,
 so a stage's peak memory is its worker's peak so far.
 """
+
 from __future__ import annotations
 
 import functools
@@ -37,8 +38,9 @@ def _points_task(cache_root: str, task: tuple[Row, str, str | None], device: str
     from ..device import resolve_device
 
     row, points_key, _ = task
-    return run_points(StageCache(cache_root), row, points_key, provenance={"commit": git_commit()},
-                      device=resolve_device(device))
+    return run_points(
+        StageCache(cache_root), row, points_key, provenance={"commit": git_commit()}, device=resolve_device(device)
+    )
 
 
 def _train_task(cache_root: str, task: tuple[Row, str, str | None], device: str = "auto") -> dict:
@@ -52,12 +54,19 @@ def _train_task(cache_root: str, task: tuple[Row, str, str | None], device: str 
     else:
         gsplat_backend.available()
     row, points_key, train_key = task
-    return run_train(StageCache(cache_root), row, key=train_key, points_key=points_key,
-                     provenance={"commit": git_commit()}, device=dev)
+    return run_train(
+        StageCache(cache_root),
+        row,
+        key=train_key,
+        points_key=points_key,
+        provenance={"commit": git_commit()},
+        device=dev,
+    )
 
 
-def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str,
-               progress: bool) -> set[str]:
+def _run_tasks(
+    fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str, progress: bool
+) -> set[str]:
     """Run ``fn`` on every task -> the keys of the stages this run computed (not those another run sharing the
     cache computed meanwhile: a task waits for that stage's lock and then reads it)."""
     from tqdm import tqdm
@@ -67,10 +76,14 @@ def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, 
         return computed
     bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
     if engine == "dask":
-        from dask.distributed import Client, LocalCluster, as_completed as dask_completed
+        from dask.distributed import Client, LocalCluster
+        from dask.distributed import as_completed as dask_completed
 
-        cluster = None if scheduler else LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
-                                                      dashboard_address=None)
+        cluster = (
+            None
+            if scheduler
+            else LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None)
+        )
         with Client(scheduler or cluster) as client:
             futures = client.map(fn, [cache_root] * len(tasks), tasks, pure=False)
             for f in dask_completed(futures):
@@ -81,8 +94,9 @@ def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, 
             cluster.close()
     else:
         threads = max(1, (os.cpu_count() or 1) // jobs)
-        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), initializer=_init_worker,
-                                 initargs=(threads,), max_tasks_per_child=1) as pool:
+        with ProcessPoolExecutor(
+            jobs, mp_context=get_context("spawn"), initializer=_init_worker, initargs=(threads,), max_tasks_per_child=1
+        ) as pool:
             for f in as_completed([pool.submit(fn, cache_root, r) for r in tasks]):
                 r = f.result()
                 computed |= {r["key"]} if not r["cached"] else set()
@@ -91,8 +105,16 @@ def _run_tasks(fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, 
     return computed
 
 
-def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", scheduler: str | None = None,
-              cache_dir=None, progress: bool = True, device: str = "auto") -> pd.DataFrame:
+def run_suite(
+    suite: Suite,
+    out_dir,
+    jobs: int = 1,
+    engine: str = "local",
+    scheduler: str | None = None,
+    cache_dir=None,
+    progress: bool = True,
+    device: str = "auto",
+) -> pd.DataFrame:
     """Run (or read from the cache) every row of ``suite``; write DIR/results.csv, results.md, plots and
     report.html. ``device``: where the stages compute (auto, cpu, cuda); a cached stage keeps the device it ran on."""
     from ..device import resolve_device
@@ -110,17 +132,46 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
     # keys fixed once, here: workers use them, so the run stays consistent even if the code changes meanwhile
     tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
     points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
-    points_run = _run_tasks(functools.partial(_points_task, device=device), list(points_todo.values()),
-                            str(cache.root), jobs, engine, scheduler, "points", progress)
+    points_run = _run_tasks(
+        functools.partial(_points_task, device=device),
+        list(points_todo.values()),
+        str(cache.root),
+        jobs,
+        engine,
+        scheduler,
+        "points",
+        progress,
+    )
     points_done = {t[1]: cache.done("points", t[1]) for t in tasks}
-    train_todo = {t[2]: t for t in tasks if t[2] is not None and "unavailable" not in points_done[t[1]]
-                  and cache.done("train", t[2]) is None}
-    train_run = _run_tasks(functools.partial(_train_task, device=device), list(train_todo.values()),
-                           str(cache.root), jobs, engine, scheduler, "train", progress)
+    train_todo = {
+        t[2]: t
+        for t in tasks
+        if t[2] is not None and "unavailable" not in points_done[t[1]] and cache.done("train", t[2]) is None
+    }
+    train_run = _run_tasks(
+        functools.partial(_train_task, device=device),
+        list(train_todo.values()),
+        str(cache.root),
+        jobs,
+        engine,
+        scheduler,
+        "train",
+        progress,
+    )
     env = environment()
-    frame = pd.DataFrame([result_row(row, points_done[pk], cache.done("train", tk) if tk else None, env,
-                                     pk not in points_run, tk is not None and tk not in train_run)
-                          for row, pk, tk in tasks])
+    frame = pd.DataFrame(
+        [
+            result_row(
+                row,
+                points_done[pk],
+                cache.done("train", tk) if tk else None,
+                env,
+                pk not in points_run,
+                tk is not None and tk not in train_run,
+            )
+            for row, pk, tk in tasks
+        ]
+    )
     with atomic_write(out / "results.csv") as tmp:
         frame.to_csv(tmp, index=False)
     from .report import write_plots, write_results_md
@@ -128,8 +179,10 @@ def run_suite(suite: Suite, out_dir, jobs: int = 1, engine: str = "local", sched
 
     write_plots(frame, suite, out)
     write_results_md(frame, suite, out, wall_seconds=time.perf_counter() - t0)
-    assets = [RowAssets(cache.folder("train", tk) / "renders" if tk else None,
-                        cache.folder("points", pk) / "cloud.ply", pk) for _, pk, tk in tasks]
+    assets = [
+        RowAssets(cache.folder("train", tk) / "renders" if tk else None, cache.folder("points", pk) / "cloud.ply", pk)
+        for _, pk, tk in tasks
+    ]
     write_report_html(frame, suite, out, assets, wall_seconds=time.perf_counter() - t0)
     return frame
 
@@ -144,21 +197,43 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
     settings, every metric with its protocol, seconds per stage, peak memory, versions, commit, and which
     stages came from the cache."""
     if "unavailable" in pts:
-        return {"label": row.label, "scene": row.scene, "width": row.width, "source": row.source,
-                "teacher": row.teacher, **row.extra, "unavailable_note": pts["unavailable"], "cached": "none",
-                "commit": pts.get("commit", "unrecorded")}
+        return {
+            "label": row.label,
+            "scene": row.scene,
+            "width": row.width,
+            "source": row.source,
+            "teacher": row.teacher,
+            **row.extra,
+            "unavailable_note": pts["unavailable"],
+            "cached": "none",
+            "commit": pts.get("commit", "unrecorded"),
+        }
     rep = pts["report"]
     depth = rep.get("depth") if isinstance(rep.get("depth"), dict) else {}
     points = rep.get("points", {})
-    rec = {"label": row.label, "scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,
-           "views": rep.get("views"), "panoramas": rep.get("panoramas", 1), **row.extra,
-           "abs_rel": _num(depth.get("abs_rel")), "rmse": _num(depth.get("rmse")), "delta1": _num(depth.get("delta1")),
-           "teacher_view_abs_rel": _num(rep.get("teacher_per_view_abs_rel_median")),
-           "points": points.get("count"), "chamfer": _num(points.get("chamfer")),
-           "fscore": _num(points.get("fscore")),
-           "accuracy": _num(points.get("accuracy")), "completeness": _num(points.get("completeness")),
-           "sec_points": pts["seconds"], "peak_mb_points": pts["peak_rss_mb"],
-           "view_components": rep.get("view_components"), "warning": "; ".join(rep.get("warnings", []))}
+    rec = {
+        "label": row.label,
+        "scene": row.scene,
+        "width": row.width,
+        "source": row.source,
+        "teacher": row.teacher,
+        "views": rep.get("views"),
+        "panoramas": rep.get("panoramas", 1),
+        **row.extra,
+        "abs_rel": _num(depth.get("abs_rel")),
+        "rmse": _num(depth.get("rmse")),
+        "delta1": _num(depth.get("delta1")),
+        "teacher_view_abs_rel": _num(rep.get("teacher_per_view_abs_rel_median")),
+        "points": points.get("count"),
+        "chamfer": _num(points.get("chamfer")),
+        "fscore": _num(points.get("fscore")),
+        "accuracy": _num(points.get("accuracy")),
+        "completeness": _num(points.get("completeness")),
+        "sec_points": pts["seconds"],
+        "peak_mb_points": pts["peak_rss_mb"],
+        "view_components": rep.get("view_components"),
+        "warning": "; ".join(rep.get("warnings", [])),
+    }
     for stage, sec in rep["seconds"].items():
         if stage != "total":
             rec[f"sec_points_{stage}"] = sec
@@ -174,22 +249,39 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
                 rec[f"lpips_{tag}_note"] = block["lpips"]
             if not block:
                 rec[f"psnr_{tag}_note"] = m.get(proto)
-        rec.update(device=m.get("device", "cpu"), device_name=m.get("device_name", "unrecorded"),
-                   peak_gpu_mb=_num(m.get("peak_gpu_memory_mb")))
-        rec.update(gaussians=m["gaussians"], iters=m["iterations"], strategy=m["strategy"],
-                   labels=m["config"]["labels"], res=m["config"]["res"],
-                   sec_labels=m["seconds"]["labels"], sec_train=m["seconds"]["train"], sec_eval=m["seconds"]["eval"],
-                   peak_mb_train=tr["peak_rss_mb"],
-                   history=";".join(f"{h['iteration']}:{h['psnr']:.3f}" for h in m["history"]),
-                   # held-out PSNR against training seconds (runs made before it was recorded have none)
-                   history_heldout=";".join(f"{h['seconds']:.2f}:{h['heldout_psnr']:.3f}" for h in m["history"]
-                                            if "heldout_psnr" in h and "seconds" in h) or None)
+        rec.update(
+            device=m.get("device", "cpu"),
+            device_name=m.get("device_name", "unrecorded"),
+            peak_gpu_mb=_num(m.get("peak_gpu_memory_mb")),
+        )
+        rec.update(
+            gaussians=m["gaussians"],
+            iters=m["iterations"],
+            strategy=m["strategy"],
+            labels=m["config"]["labels"],
+            res=m["config"]["res"],
+            sec_labels=m["seconds"]["labels"],
+            sec_train=m["seconds"]["train"],
+            sec_eval=m["seconds"]["eval"],
+            peak_mb_train=tr["peak_rss_mb"],
+            history=";".join(f"{h['iteration']}:{h['psnr']:.3f}" for h in m["history"]),
+            # held-out PSNR against training seconds (runs made before it was recorded have none)
+            history_heldout=";".join(
+                f"{h['seconds']:.2f}:{h['heldout_psnr']:.3f}"
+                for h in m["history"]
+                if "heldout_psnr" in h and "seconds" in h
+            )
+            or None,
+        )
         seconds_total += tr["seconds"]
         peak = max(peak, tr["peak_rss_mb"])
-    rec.update(sec_total=seconds_total, peak_mb=peak, cached=",".join(
-        s for s, c in (("points", points_cached), ("train", train_cached)) if c) or "none",
+    rec.update(
+        sec_total=seconds_total,
+        peak_mb=peak,
+        cached=",".join(s for s, c in (("points", points_cached), ("train", train_cached)) if c) or "none",
         # the commit of the run that computed the row's last stage; a cache written before commits were stored
         # has none
         commit=(tr if tr is not None else pts).get("commit", "unrecorded"),
-        **{f"version_{k}": v for k, v in env["versions"].items()})
+        **{f"version_{k}": v for k, v in env["versions"].items()},
+    )
     return rec

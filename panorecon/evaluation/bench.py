@@ -7,6 +7,7 @@ micro-benchmarks, and compares them with a stored baseline (``benchmarks/baselin
 - slowdowns warn: a speed ratio measured in the same run (method / reference) below baseline / ``SLOWDOWN_RATIO``.
 Ratios, not seconds, are compared, so a slower or busier machine does not raise false alarms.
 """
+
 from __future__ import annotations
 
 import json
@@ -38,20 +39,31 @@ def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
     fusion = bench_fusion.main(flag)["results"][0]
     raster = bench_rasterizer.main(flag)
     trained = frame[frame["device"].notna()] if "device" in frame else frame.iloc[:0]
-    out = {"suite": {}, "suite_seconds": suite_seconds,
-           "device": {"device": ",".join(sorted(set(trained["device"]))) or "n/a: no row trains",
-                      "device_name": ",".join(sorted(set(trained["device_name"]))) or "n/a: no row trains",
-                      "peak_gpu_mb": float(trained["peak_gpu_mb"].max()) if len(trained) and
-                      trained["peak_gpu_mb"].notna().any() else "n/a: CPU run",
-                      "train_seconds": float(trained["sec_train"].sum()) if len(trained) else 0.0},
-           "fusion": {"abs_rel": fusion["fibonacci-lsq"]["median_abs_rel"],
-                      "reference_abs_rel": fusion["moge-reference"]["median_abs_rel"],
-                      "speedup_vs_reference": fusion["speedup_vs_reference"]},
-           "rasterizer": {"max_abs_difference": raster["max_abs_difference"],
-                          "speedup_cpu_vs_torch": raster["results"][0]["speedup_cpu_vs_torch"]}}
+    out = {
+        "suite": {},
+        "suite_seconds": suite_seconds,
+        "device": {
+            "device": ",".join(sorted(set(trained["device"]))) or "n/a: no row trains",
+            "device_name": ",".join(sorted(set(trained["device_name"]))) or "n/a: no row trains",
+            "peak_gpu_mb": float(trained["peak_gpu_mb"].max())
+            if len(trained) and trained["peak_gpu_mb"].notna().any()
+            else "n/a: CPU run",
+            "train_seconds": float(trained["sec_train"].sum()) if len(trained) else 0.0,
+        },
+        "fusion": {
+            "abs_rel": fusion["fibonacci-lsq"]["median_abs_rel"],
+            "reference_abs_rel": fusion["moge-reference"]["median_abs_rel"],
+            "speedup_vs_reference": fusion["speedup_vs_reference"],
+        },
+        "rasterizer": {
+            "max_abs_difference": raster["max_abs_difference"],
+            "speedup_cpu_vs_torch": raster["results"][0]["speedup_cpu_vs_torch"],
+        },
+    }
     for label, g in frame.groupby("label", sort=False):  # metrics a row does not define (NaN) are left out
-        out["suite"][label] = {k: float(g[k].mean()) for k in ("abs_rel", "chamfer", "psnr_pl", "psnr_ho")
-                               if k in g and g[k].notna().all()}
+        out["suite"][label] = {
+            k: float(g[k].mean()) for k in ("abs_rel", "chamfer", "psnr_pl", "psnr_ho") if k in g and g[k].notna().all()
+        }
     return out
 
 
@@ -81,16 +93,22 @@ def compare(current: dict, baseline: dict) -> tuple[list[str], list[str]]:
         d = current["rasterizer"]["max_abs_difference"][k]
         if not d <= tol:
             fails.append(f"rasterizer cpu vs torch: max |difference| of {k} {d:.2e} > {tol:.0e}")
-    for name, cur, base in (("fusion speedup vs the MoGe-style reference", f["speedup_vs_reference"], bf["speedup_vs_reference"]),
-                            ("rasterizer cpu vs torch speedup", current["rasterizer"]["speedup_cpu_vs_torch"],
-                             baseline["rasterizer"]["speedup_cpu_vs_torch"])):
+    for name, cur, base in (
+        ("fusion speedup vs the MoGe-style reference", f["speedup_vs_reference"], bf["speedup_vs_reference"]),
+        (
+            "rasterizer cpu vs torch speedup",
+            current["rasterizer"]["speedup_cpu_vs_torch"],
+            baseline["rasterizer"]["speedup_cpu_vs_torch"],
+        ),
+    ):
         if cur < base / SLOWDOWN_RATIO:
             warns.append(f"{name}: {cur:.2f}x < baseline {base:.2f}x / {SLOWDOWN_RATIO}")
     return fails, warns
 
 
-def run_bench(suite_path, baseline_path, out_path=None, quick: bool = True, update_baseline: bool = False,
-              device: str = "auto") -> int:
+def run_bench(
+    suite_path, baseline_path, out_path=None, quick: bool = True, update_baseline: bool = False, device: str = "auto"
+) -> int:
     """Measure, compare, print JSON; exit status 1 on a correctness regression."""
     from ..device import resolve_device
     from .environment import environment
@@ -107,8 +125,14 @@ def run_bench(suite_path, baseline_path, out_path=None, quick: bool = True, upda
 
         raise PanoreconInputError(f"baseline {baseline_path}: no such file (make one with --update-baseline)")
     fails, warns = compare(current, json.loads(baseline_path.read_text()))
-    result = {**environment(), "current": current, "baseline": str(baseline_path), "failures": fails, "warnings": warns,
-              "status": "fail" if fails else "ok"}
+    result = {
+        **environment(),
+        "current": current,
+        "baseline": str(baseline_path),
+        "failures": fails,
+        "warnings": warns,
+        "status": "fail" if fails else "ok",
+    }
     print(json.dumps(result, indent=2))
     if out_path:
         write_json(out_path, result)

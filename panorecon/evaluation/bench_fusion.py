@@ -9,6 +9,7 @@ Prints JSON: machine, versions, commit, and per size the median seconds, AbsRel 
 method (each repeat in a fresh process, so the peak is that run's own; it includes the ~0.3 GB of imports)
 and the speed ratio reference / method.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,8 +43,12 @@ def one_run(method: str, height: int, view_size: int, seed: int) -> dict:
     else:
         cams = moge_cameras(view_size)
     rng = np.random.default_rng(seed)
-    maps = [(box_distance(c.world_rays()) * rng.uniform(0.7, 1.4) * (1 + 0.02 * rng.standard_normal((c.height, c.width))))
-            .astype(np.float32) for c in cams]
+    maps = [
+        (
+            box_distance(c.world_rays()) * rng.uniform(0.7, 1.4) * (1 + 0.02 * rng.standard_normal((c.height, c.width)))
+        ).astype(np.float32)
+        for c in cams
+    ]
     if method == "fibonacci-lsq":
         views = [ViewDepth(c, m, "distance", np.ones(m.shape, bool)) for c, m in zip(cams, maps)]
         fuse_views(views[:2], 16, 32)  # warm-up: lazy imports and first-call costs stay out of the timing
@@ -74,9 +79,12 @@ def main(argv=None) -> dict:
         row = {"erp": f"{2 * height}x{height}", "view_size": view_size, "repeats": repeats}
         for method in ("fibonacci-lsq", "moge-reference"):
             runs = [in_fresh_process(one_run, method, height, view_size, k) for k in range(repeats)]
-            row[method] = {"median_seconds": statistics.median(r["seconds"] for r in runs),
-                           "median_abs_rel": statistics.median(r["abs_rel"] for r in runs),
-                           "peak_rss_mb": max(r["peak_rss_mb"] for r in runs), "iterations": runs[0]["iterations"]}
+            row[method] = {
+                "median_seconds": statistics.median(r["seconds"] for r in runs),
+                "median_abs_rel": statistics.median(r["abs_rel"] for r in runs),
+                "peak_rss_mb": max(r["peak_rss_mb"] for r in runs),
+                "iterations": runs[0]["iterations"],
+            }
         row["speedup_vs_reference"] = row["moge-reference"]["median_seconds"] / row["fibonacci-lsq"]["median_seconds"]
         results.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)

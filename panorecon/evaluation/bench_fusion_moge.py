@@ -18,6 +18,7 @@ CPU time; on a shared machine set OMP_NUM_THREADS=1 (recorded in ``thread_env``)
 either method do not fight other work. MoGe's ERP has its seam at panorecon's lon 0 (columns rolled by W/2); the
 benchmark rolls its input and output accordingly.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,8 +46,10 @@ def require_moge():
     except ImportError as e:
         from ..io import PanoreconInputError
 
-        raise PanoreconInputError(f"MoGe's merge is not installed ({e}); install the moge extra: "
-                                  "pip install --no-deps dlr-moge==2.0.0 dlr-utils3d==1.3") from None
+        raise PanoreconInputError(
+            f"MoGe's merge is not installed ({e}); install the moge extra: "
+            "pip install --no-deps dlr-moge==2.0.0 dlr-utils3d==1.3"
+        ) from None
     return panorama
 
 
@@ -86,8 +89,12 @@ def moge_cameras(size: int):
     from ..geometry import PinholeCamera
 
     ext, ints = require_moge().get_panorama_cameras()
-    return [PinholeCamera(np.asarray(k, np.float64) * np.array([[size], [size], [1.0]]), np.asarray(e, np.float64),
-                          size, size) for e, k in zip(ext, ints)]
+    return [
+        PinholeCamera(
+            np.asarray(k, np.float64) * np.array([[size], [size], [1.0]]), np.asarray(e, np.float64), size, size
+        )
+        for e, k in zip(ext, ints)
+    ]
 
 
 def moge_merge_maps(maps, ext, ints, height: int, width: int) -> np.ndarray:
@@ -142,8 +149,15 @@ def one_run(method: str, truth_path: str, layout: str, condition: str, seed: int
         pred = res.distance
         extra = {"iterations": res.report["iterations"]}
     m = depth_metrics(pred, truth)
-    return {"seconds": seconds, "cpu_seconds": cpu, "abs_rel": m["abs_rel"], "pixels": m["pixels"], "rss_before_mb": rss,
-            "peak_mb": _status_mb("VmHWM"), **extra}
+    return {
+        "seconds": seconds,
+        "cpu_seconds": cpu,
+        "abs_rel": m["abs_rel"],
+        "pixels": m["pixels"],
+        "rss_before_mb": rss,
+        "peak_mb": _status_mb("VmHWM"),
+        **extra,
+    }
 
 
 VARIANTS = {"nearest": {"sampling": "nearest"}, "linear-1": {"supersample": 1}, "linear-2": {"supersample": 2}}
@@ -168,14 +182,25 @@ def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr) 
                 r = in_fresh_process(one_run, method, path, layout, condition, seed, VARIANTS.get(variant))
                 r.pop("peak_rss_mb", None)  # getrusage's peak counts the parent's RSS at fork: peak_mb is the run's own
                 name = "fibonacci-own" if layout == "fibonacci" else f"{method}[{variant}]" if variant else method
-                row = {"erp": f"{width}x{width // 2}", "condition": condition, "method": name,
-                       "views": 12 if layout == "moge" else 20, **r}
+                row = {
+                    "erp": f"{width}x{width // 2}",
+                    "condition": condition,
+                    "method": name,
+                    "views": 12 if layout == "moge" else 20,
+                    **r,
+                }
                 print(json.dumps(row), file=log, flush=True)
                 rows.append(row)
     for row in rows:
         if row["method"] != "moge":
-            ref = next((r for r in rows if r["method"] == "moge" and r["erp"] == row["erp"]
-                        and r["condition"] == row["condition"]), None)
+            ref = next(
+                (
+                    r
+                    for r in rows
+                    if r["method"] == "moge" and r["erp"] == row["erp"] and r["condition"] == row["condition"]
+                ),
+                None,
+            )
             if ref is None:
                 continue
             row["speedup_vs_moge"] = ref["seconds"] / row["seconds"]
@@ -190,8 +215,13 @@ def main(argv=None) -> dict:
     ap.add_argument("--widths", type=int, nargs="+", default=[1024, 2048])
     ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--variants", nargs="*", default=[], choices=sorted(VARIANTS),
-                    help="also fuse_views with one setting changed (scale+noise): the levers measured alone")
+    ap.add_argument(
+        "--variants",
+        nargs="*",
+        default=[],
+        choices=sorted(VARIANTS),
+        help="also fuse_views with one setting changed (scale+noise): the levers measured alone",
+    )
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     with open("/proc/loadavg") as f:
@@ -205,9 +235,21 @@ def main(argv=None) -> dict:
     with open("/proc/loadavg") as f:
         load = f.read().split()[:3]
     threads = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS") if k in os.environ}
-    return emit({"benchmark": "fusion-vs-moge-equal-inputs", "scene": args.scene, "view_size": VIEW_SIZE,
-                 "noise": NOISE, "seed": args.seed, "loadavg_before": load_before, "loadavg_after": load,
-                 "thread_env": threads, **env, "results": rows}, args.out)
+    return emit(
+        {
+            "benchmark": "fusion-vs-moge-equal-inputs",
+            "scene": args.scene,
+            "view_size": VIEW_SIZE,
+            "noise": NOISE,
+            "seed": args.seed,
+            "loadavg_before": load_before,
+            "loadavg_after": load,
+            "thread_env": threads,
+            **env,
+            "results": rows,
+        },
+        args.out,
+    )
 
 
 if __name__ == "__main__":

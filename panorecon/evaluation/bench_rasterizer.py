@@ -10,6 +10,7 @@ run once where one run exceeds 60 s, and says so), peak RSS of this process, rat
 compositing backward, projection backward (each stage's backward run alone with ``torch.autograd.grad``), and
 the PyTorch reference projection's forward and backward in the same run.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,8 +27,14 @@ from .environment import emit, environment
 
 def scene(n: int, seed: int = 0):
     g = torch.Generator().manual_seed(seed)
-    means = torch.stack([torch.rand(n, generator=g) * 6 + 2, (torch.rand(n, generator=g) - 0.5) * 6,
-                         (torch.rand(n, generator=g) - 0.5) * 6], -1)
+    means = torch.stack(
+        [
+            torch.rand(n, generator=g) * 6 + 2,
+            (torch.rand(n, generator=g) - 0.5) * 6,
+            (torch.rand(n, generator=g) - 0.5) * 6,
+        ],
+        -1,
+    )
     quats = torch.randn(n, 4, generator=g)
     scales = torch.rand(n, 3, generator=g) * 0.03 + 0.01
     opac = torch.rand(n, generator=g) * 0.8 + 0.1
@@ -55,8 +62,17 @@ def cpu_stages(size: int = 256, n: int = 100_000, repeats: int = 5) -> dict:
 
     K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
     V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
-    times = {k: [] for k in ("projection_forward", "composite_forward", "composite_backward", "projection_backward",
-                             "reference_projection_forward", "reference_projection_backward")}
+    times = {
+        k: []
+        for k in (
+            "projection_forward",
+            "composite_forward",
+            "composite_backward",
+            "projection_backward",
+            "reference_projection_forward",
+            "reference_projection_backward",
+        )
+    }
     for _ in range(repeats):
         for project, prefix in ((cpu_backend.project, ""), (project_gaussians, "reference_")):
             means, quats, scales, opac, colors = [t.clone().requires_grad_(True) for t in scene(n)]
@@ -91,8 +107,10 @@ def max_difference(size: int, n: int) -> dict:
         img, *_ = rasterize(*leaves, V, K, size, size, backend=backend)
         img.sum().backward()
         out[backend] = (img.detach(), leaves[0].grad)
-    return {"image": float((out["cpu"][0] - out["torch"][0]).abs().max()),
-            "grad_means": float((out["cpu"][1] - out["torch"][1]).abs().max())}
+    return {
+        "image": float((out["cpu"][0] - out["torch"][0]).abs().max()),
+        "grad_means": float((out["cpu"][1] - out["torch"][1]).abs().max()),
+    }
 
 
 def main(argv=None) -> dict:
@@ -115,9 +133,18 @@ def main(argv=None) -> dict:
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
     extra = {"cpu_stages": cpu_stages()} if args.stages else {}
-    return emit({"benchmark": "rasterizer forward+backward", **environment(), "threads": torch.get_num_threads(),
-                 "max_abs_difference": max_difference(*grid[0]), **extra,
-                 "peak_rss_mb": peak_rss_mb(), "results": rows}, args.out)
+    return emit(
+        {
+            "benchmark": "rasterizer forward+backward",
+            **environment(),
+            "threads": torch.get_num_threads(),
+            "max_abs_difference": max_difference(*grid[0]),
+            **extra,
+            "peak_rss_mb": peak_rss_mb(),
+            "results": rows,
+        },
+        args.out,
+    )
 
 
 if __name__ == "__main__":

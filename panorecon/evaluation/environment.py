@@ -1,4 +1,5 @@
 """What every benchmark prints beside its numbers: machine, versions, commit."""
+
 from __future__ import annotations
 
 import json
@@ -26,20 +27,35 @@ def environment() -> dict:
     except ImportError:
         open3d_version = "n/a: not installed"
 
-    return {"machine": {"platform": platform.platform(), "processor": platform.machine(), "cpus": os.cpu_count()},
-            "versions": {"python": sys.version.split()[0], "numpy": numpy.__version__, "scipy": scipy.__version__,
-                         "torch": torch.__version__, "open3d": open3d_version, "panorecon": __version__},
-            "commit": git_commit()}
+    return {
+        "machine": {"platform": platform.platform(), "processor": platform.machine(), "cpus": os.cpu_count()},
+        "versions": {
+            "python": sys.version.split()[0],
+            "numpy": numpy.__version__,
+            "scipy": scipy.__version__,
+            "torch": torch.__version__,
+            "open3d": open3d_version,
+            "panorecon": __version__,
+        },
+        "commit": git_commit(),
+    }
 
 
 def git_commit() -> str:
     """HEAD of the checkout panorecon runs from, with "+dirty" when tracked files differ from it; "unknown"
     outside a git checkout."""
     try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
-                                cwd=Path(__file__).parent).stdout.strip()
-        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                                    text=True, cwd=Path(__file__).parent).stdout.strip())
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=Path(__file__).parent
+        ).stdout.strip()
+        dirty = bool(
+            subprocess.run(
+                ["git", "status", "--porcelain", "--untracked-files=no"],
+                capture_output=True,
+                text=True,
+                cwd=Path(__file__).parent,
+            ).stdout.strip()
+        )
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return commit + ("+dirty" if dirty else "")

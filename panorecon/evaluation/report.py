@@ -1,4 +1,5 @@
 """results.md tables shaped like the paper's, and the plots: error against run time (Pareto), PSNR against steps."""
+
 from __future__ import annotations
 
 import math
@@ -10,19 +11,30 @@ from ..io import atomic_write
 
 # (column, header, format) of the averaged table; a column absent from the frame (no training) is left out
 TABLE_COLUMNS = [
-    ("panoramas", "panoramas", "{:.0f}"), ("psnr_pl", "PSNR", "{:.2f}"), ("ssim_pl", "SSIM", "{:.3f}"), ("lpips_pl", "LPIPS", "{:.3f}"),
-    ("psnr_ho", "held-out PSNR", "{:.2f}"), ("ssim_ho", "held-out SSIM", "{:.3f}"),
-    ("abs_rel", "AbsRel", "{:.4f}"), ("chamfer", "Chamfer (m)", "{:.4f}"), ("accuracy", "Acc. (m)", "{:.4f}"),
-    ("completeness", "Comp. (m)", "{:.4f}"), ("points", "points", "{:,.0f}"), ("gaussians", "Gaussians", "{:,.0f}"),
-    ("sec_points", "points s", "{:.1f}"), ("sec_train", "train s", "{:.1f}"), ("sec_total", "total s", "{:.1f}"),
+    ("panoramas", "panoramas", "{:.0f}"),
+    ("psnr_pl", "PSNR", "{:.2f}"),
+    ("ssim_pl", "SSIM", "{:.3f}"),
+    ("lpips_pl", "LPIPS", "{:.3f}"),
+    ("psnr_ho", "held-out PSNR", "{:.2f}"),
+    ("ssim_ho", "held-out SSIM", "{:.3f}"),
+    ("abs_rel", "AbsRel", "{:.4f}"),
+    ("chamfer", "Chamfer (m)", "{:.4f}"),
+    ("accuracy", "Acc. (m)", "{:.4f}"),
+    ("completeness", "Comp. (m)", "{:.4f}"),
+    ("points", "points", "{:,.0f}"),
+    ("gaussians", "Gaussians", "{:,.0f}"),
+    ("sec_points", "points s", "{:.1f}"),
+    ("sec_train", "train s", "{:.1f}"),
+    ("sec_total", "total s", "{:.1f}"),
     ("peak_mb", "peak MB", "{:.0f}"),
 ]
 
 
 def pareto(points: list[tuple[float, float]]) -> list[int]:
     """Indices of the points not dominated in (x, y), both lower-is-better."""
-    return [i for i, (s, e) in enumerate(points)
-            if not any(s2 <= s and e2 <= e and (s2, e2) != (s, e) for s2, e2 in points)]
+    return [
+        i for i, (s, e) in enumerate(points) if not any(s2 <= s and e2 <= e and (s2, e2) != (s, e) for s2, e2 in points)
+    ]
 
 
 def _fmt(v, f: str) -> str:
@@ -40,13 +52,16 @@ def average_table(frame: pd.DataFrame) -> pd.DataFrame:
 
 def markdown_table(table: pd.DataFrame, label_header: str) -> str:
     heads = [(c, h, f) for c, h, f in TABLE_COLUMNS if c in table]
-    lines = ["| " + " | ".join([label_header, "scenes"] + [h for _, h, _ in heads]) + " |",
-             "|" + "---|" * (len(heads) + 2)]
+    lines = [
+        "| " + " | ".join([label_header, "scenes"] + [h for _, h, _ in heads]) + " |",
+        "|" + "---|" * (len(heads) + 2),
+    ]
     for label, r in table.iterrows():
         trained = {c: not math.isnan(r.get(c.replace("lpips", "psnr"), math.nan)) for c, _, _ in heads}
         # a trained row without LPIPS: "n/a", its reason listed under the table ("n/a cells: ...")
-        cells = [("n/a" if c.startswith("lpips") and math.isnan(r[c]) and trained[c] else _fmt(r[c], f))
-                 for c, _, f in heads]
+        cells = [
+            ("n/a" if c.startswith("lpips") and math.isnan(r[c]) and trained[c] else _fmt(r[c], f)) for c, _, f in heads
+        ]
         lines.append("| " + " | ".join([str(label), str(int(r["scenes"]))] + cells) + " |")
     return "\n".join(lines)
 
@@ -55,9 +70,13 @@ def _paper_block(paper: dict) -> str:
     if not paper:
         return ""
     cols = paper.get("columns", [])
-    lines = [f"**The paper's own numbers, on its own generated scenes** ({paper.get('caption', '')}; not comparable "
-             "run for run: other scenes, an RTX 3090, 10,000 iterations):", "",
-             "| " + " | ".join(["row"] + cols) + " |", "|" + "---|" * (len(cols) + 1)]
+    lines = [
+        f"**The paper's own numbers, on its own generated scenes** ({paper.get('caption', '')}; not comparable "
+        "run for run: other scenes, an RTX 3090, 10,000 iterations):",
+        "",
+        "| " + " | ".join(["row"] + cols) + " |",
+        "|" + "---|" * (len(cols) + 1),
+    ]
     for r in paper.get("rows", []):
         match = r.get("match")
         label = r["label"] + (f" (ours: {', '.join(f'{k}={v}' for k, v in match.items())})" if match else "")
@@ -67,12 +86,19 @@ def _paper_block(paper: dict) -> str:
 
 def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float, per_scene: bool = True) -> None:
     """DIR/results.md: the averaged table, the per-scene table, the paper's numbers, notes on n/a cells."""
-    parts = [f"# {suite.title}", "",
-             f"Suite `{suite.path}`; {len(frame)} runs over {frame['scene'].nunique()} scenes; this invocation took "
-             f"{wall_seconds:.1f} s (cached stages: {', '.join(sorted(set(frame['cached'])))}). PSNR/SSIM/LPIPS "
-             "without a prefix are the pseudo-label protocol (the paper's); held-out = true renders away from the "
-             "panorama centre. Seconds and peak MB are those of the process that computed each stage.", "",
-             "## Averaged over scenes", "", markdown_table(average_table(frame), " / ".join(suite.row_columns)), ""]
+    parts = [
+        f"# {suite.title}",
+        "",
+        f"Suite `{suite.path}`; {len(frame)} runs over {frame['scene'].nunique()} scenes; this invocation took "
+        f"{wall_seconds:.1f} s (cached stages: {', '.join(sorted(set(frame['cached'])))}). PSNR/SSIM/LPIPS "
+        "without a prefix are the pseudo-label protocol (the paper's); held-out = true renders away from the "
+        "panorama centre. Seconds and peak MB are those of the process that computed each stage.",
+        "",
+        "## Averaged over scenes",
+        "",
+        markdown_table(average_table(frame), " / ".join(suite.row_columns)),
+        "",
+    ]
     notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]
@@ -87,14 +113,26 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
         parts += ["## Per scene", ""]
         for scene, g in frame.groupby("scene", sort=False):
             parts += [f"### {scene}", "", markdown_table(average_table(g), " / ".join(suite.row_columns)), ""]
-    parts += ["Plots: `pareto.png` (error against run time), `psnr_vs_iterations.png` (when rows train), "
-              "`heldout_psnr_vs_seconds.png` (when they have held-out views).", ""]
+    parts += [
+        "Plots: `pareto.png` (error against run time), `psnr_vs_iterations.png` (when rows train), "
+        "`heldout_psnr_vs_seconds.png` (when they have held-out views).",
+        "",
+    ]
     with atomic_write(out / "results.md") as tmp:
         Path(tmp).write_text("\n".join(parts))
 
 
-def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabel: str, path: Path,
-                higher_is_better: bool = False, title: str = "", label_col: str = "label") -> None:
+def pareto_plot(
+    mean: pd.DataFrame,
+    per_run: pd.DataFrame,
+    x: str,
+    y: str,
+    ylabel: str,
+    path: Path,
+    higher_is_better: bool = False,
+    title: str = "",
+    label_col: str = "label",
+) -> None:
     """Two panels of y against x (log seconds): every run coloured by scene and labelled (left), and the
     per-label means over scenes with their Pareto front (right)."""
     import matplotlib
@@ -107,8 +145,14 @@ def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabe
     for k, (scene, g) in enumerate(per_run.groupby("scene", sort=False) if "scene" in per_run else [("runs", per_run)]):
         ax_runs.scatter(g[x], g[y], s=18, color=f"C{k}", label=str(scene))
         for j, (_, r) in enumerate(g.iterrows()):
-            ax_runs.annotate(str(r[label_col]), (r[x], r[y]), fontsize=6, color=f"C{k}",
-                             xytext=(3, 6 if j % 2 else -9), textcoords="offset points")
+            ax_runs.annotate(
+                str(r[label_col]),
+                (r[x], r[y]),
+                fontsize=6,
+                color=f"C{k}",
+                xytext=(3, 6 if j % 2 else -9),
+                textcoords="offset points",
+            )
     ax_runs.set(xlabel=f"{x} (seconds, log)", ylabel=ylabel, xscale="log", title="every run, by scene")
     ax_runs.legend(fontsize=7)
     sign = -1 if higher_is_better else 1
@@ -116,11 +160,17 @@ def pareto_plot(mean: pd.DataFrame, per_run: pd.DataFrame, x: str, y: str, ylabe
     front = pareto(pts)
     for i, (label, r) in enumerate(mean.iterrows()):
         ax_mean.scatter(r[x], r[y], s=40, color="C3" if i in front else "C0", zorder=3)
-        ax_mean.annotate(str(label), (r[x], r[y]), fontsize=8, xytext=(4, 7 if i % 2 else -11), textcoords="offset points")
+        ax_mean.annotate(
+            str(label), (r[x], r[y]), fontsize=8, xytext=(4, 7 if i % 2 else -11), textcoords="offset points"
+        )
     fp = sorted((mean[x].iloc[i], mean[y].iloc[i]) for i in front)
     ax_mean.plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1.2, label="Pareto front (red)")
-    ax_mean.set(xlabel=f"{x} (seconds, log; mean over scenes)", ylabel=f"{ylabel}, mean over scenes", xscale="log",
-                title="averaged")
+    ax_mean.set(
+        xlabel=f"{x} (seconds, log; mean over scenes)",
+        ylabel=f"{ylabel}, mean over scenes",
+        xscale="log",
+        title="averaged",
+    )
     ax_mean.legend(fontsize=8)
 
     class PlainLogFormatter(matplotlib.ticker.LogFormatter):
@@ -144,9 +194,13 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
     psnr_vs_iterations.png from each training run's history and heldout_psnr_vs_seconds.png where runs have
     held-out views."""
     trains = "psnr_pl" in frame and frame["psnr_pl"].notna().any()
-    y, ylabel, hib = (("psnr_ho", "held-out PSNR (dB)", True) if trains and frame.get("psnr_ho") is not None
-                      and frame["psnr_ho"].notna().any() else ("psnr_pl", "pseudo-label PSNR (dB)", True) if trains
-                      else ("abs_rel", "AbsRel (median-aligned)", False))
+    y, ylabel, hib = (
+        ("psnr_ho", "held-out PSNR (dB)", True)
+        if trains and frame.get("psnr_ho") is not None and frame["psnr_ho"].notna().any()
+        else ("psnr_pl", "pseudo-label PSNR (dB)", True)
+        if trains
+        else ("abs_rel", "AbsRel (median-aligned)", False)
+    )
     ok = frame[frame[y].notna()]
     if len(ok):
         mean = ok.groupby("label", sort=False)[["sec_total", y]].mean()
@@ -170,8 +224,9 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
             fig.savefig(tmp, dpi=110)
         plt.close(fig)
     if trains and "history_heldout" in frame and frame["history_heldout"].notna().any():
-        heldout_vs_seconds_plot(frame[frame["history_heldout"].notna()], out / "heldout_psnr_vs_seconds.png",
-                                suite.title)
+        heldout_vs_seconds_plot(
+            frame[frame["history_heldout"].notna()], out / "heldout_psnr_vs_seconds.png", suite.title
+        )
 
 
 def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") -> None:
@@ -188,8 +243,13 @@ def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") ->
     for _, r in frame.iterrows():
         pts = [tuple(map(float, kv.split(":"))) for kv in str(r["history_heldout"]).split(";")]
         k, s = labels.index(r["label"]), scenes.index(r.get("scene"))
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], color=f"C{k % 10}", ls=("-", "--", ":", "-.")[s % 4],
-                label=f"{r['label']}" + (f" / {r['scene']}" if r.get("scene") is not None else ""))
+        ax.plot(
+            [p[0] for p in pts],
+            [p[1] for p in pts],
+            color=f"C{k % 10}",
+            ls=("-", "--", ":", "-.")[s % 4],
+            label=f"{r['label']}" + (f" / {r['scene']}" if r.get("scene") is not None else ""),
+        )
     ax.set(xlabel="training seconds", ylabel="held-out PSNR (dB)", title=title)
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -4,6 +4,7 @@ It holds the averaged and per-scene tables (click a header to sort), pareto.png 
 and per row a strip of thumbnails: render | pseudo-label and render | held-out truth (the trainer's
 renders/label_0.png and heldout_0.png) and a screenshot of the row's initial point cloud.
 """
+
 from __future__ import annotations
 
 import base64
@@ -51,15 +52,20 @@ def data_uri(png: Path) -> str:
 
 def _table(table: pd.DataFrame, label_header: str) -> str:
     heads = [(c, h, f) for c, h, f in TABLE_COLUMNS if c in table]
-    out = ["<table class=sortable><thead><tr>", f"<th>{html.escape(label_header)}</th><th>scenes</th>",
-           "".join(f"<th>{html.escape(h)}</th>" for _, h, _ in heads), "</tr></thead><tbody>"]
+    out = [
+        "<table class=sortable><thead><tr>",
+        f"<th>{html.escape(label_header)}</th><th>scenes</th>",
+        "".join(f"<th>{html.escape(h)}</th>" for _, h, _ in heads),
+        "</tr></thead><tbody>",
+    ]
     for label, r in table.iterrows():
         cells = [f"<td>{html.escape(str(label))}</td>", f"<td data-v='{int(r['scenes'])}'>{int(r['scenes'])}</td>"]
         for c, _, f in heads:
             v = r[c]
             ok = v is not None and not (isinstance(v, float) and math.isnan(v))
-            cells.append(f"<td data-v='{float(v)!r}'>{f.format(v)}</td>" if ok
-                         else "<td data-v='NaN' class=na>n/a</td>")
+            cells.append(
+                f"<td data-v='{float(v)!r}'>{f.format(v)}</td>" if ok else "<td data-v='NaN' class=na>n/a</td>"
+            )
         out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
     return "".join(out)
@@ -84,27 +90,35 @@ def _strip(row: pd.Series, assets: RowAssets, thumbs: Path) -> str:
     if assets.cloud is not None and assets.cloud.exists():
         try:
             png = cloud_thumbnail(assets.cloud, thumbs / f"{assets.key}.png")
-            figs.append(f"<figure><img alt='point cloud' src='{data_uri(png)}'><figcaption>initial point cloud"
-                        "</figcaption></figure>")
+            figs.append(
+                f"<figure><img alt='point cloud' src='{data_uri(png)}'><figcaption>initial point cloud"
+                "</figcaption></figure>"
+            )
         except Exception as e:  # no OpenGL here: the page says so rather than failing the ablation
             figs.append(f"<figure class=na>n/a: cloud screenshot failed ({html.escape(str(e)[:120])})</figure>")
     if not figs:
         return ""
-    return (f"<div class=strip><h4>{html.escape(str(row['label']))} &middot; {html.escape(str(row['scene']))}</h4>"
-            + "".join(figs) + "</div>")
+    return (
+        f"<div class=strip><h4>{html.escape(str(row['label']))} &middot; {html.escape(str(row['scene']))}</h4>"
+        + "".join(figs)
+        + "</div>"
+    )
 
 
 def write_report_html(frame: pd.DataFrame, suite, out: Path, assets: list[RowAssets], wall_seconds: float) -> Path:
     """DIR/report.html from results ``frame`` (one row per run, in ``assets``' order) and DIR's plots."""
     out = Path(out)
     head = " / ".join(suite.row_columns)
-    parts = [f"<!doctype html><html><head><meta charset=utf-8><title>{html.escape(suite.title)}</title>",
-             f"<style>{CSS}</style></head><body><h1>{html.escape(suite.title)}</h1>",
-             f"<p>Suite <code>{html.escape(str(suite.path))}</code>: {len(frame)} runs over "
-             f"{frame['scene'].nunique()} scenes; this invocation took {wall_seconds:.1f} s. PSNR/SSIM/LPIPS without "
-             "a prefix: pseudo-label protocol; held-out: true renders away from the panorama centre. "
-             "Click a column header to sort.</p>",
-             "<h2>Averaged over scenes</h2>", _table(average_table(frame), head)]
+    parts = [
+        f"<!doctype html><html><head><meta charset=utf-8><title>{html.escape(suite.title)}</title>",
+        f"<style>{CSS}</style></head><body><h1>{html.escape(suite.title)}</h1>",
+        f"<p>Suite <code>{html.escape(str(suite.path))}</code>: {len(frame)} runs over "
+        f"{frame['scene'].nunique()} scenes; this invocation took {wall_seconds:.1f} s. PSNR/SSIM/LPIPS without "
+        "a prefix: pseudo-label protocol; held-out: true renders away from the panorama centre. "
+        "Click a column header to sort.</p>",
+        "<h2>Averaged over scenes</h2>",
+        _table(average_table(frame), head),
+    ]
     for title, name in (("Error against run time", "pareto.png"), ("PSNR against steps", "psnr_vs_iterations.png")):
         if (out / name).exists():
             parts += [f"<h2>{title}</h2>", f"<img class=plot alt='{name}' src='{data_uri(out / name)}'>"]

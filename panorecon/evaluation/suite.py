@@ -27,6 +27,7 @@ The file is checked against a typed schema before anything runs: unknown tables 
 name the closest valid one, every value has its key's type and range, and ``resolve_names`` checks every
 scene, source and teacher a row names (``run_suite`` calls it before the first stage).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -53,9 +54,18 @@ TOP_KEYS = {"title": str, "rows": list, "defaults": dict, "grid": dict, "variant
 PAPER_KEYS = {"caption": str, "columns": list, "rows": list}
 PAPER_ROW_KEYS = {"label": str, "values": list, "match": dict}
 # ranges of row values (ints not named here must be >= 0, floats finite and >= 0)
-RANGES = {"width": T.ERP_WIDTH, "views": T.VIEWS, "iters": T.ITERS, "res": T.LABEL_RES, "labels": T.LABELS,
-          "seed": T.SEED, "sh_degree": T.int_in(0, 3, "SH degree"), "sh_increase_every": T.int_in(1, None),
-          "fov_deg": T.float_in(1.0, 170.0, "field of view"), "depth_scale": T.float_in(1e-9, 1e9, "depth scale")}
+RANGES = {
+    "width": T.ERP_WIDTH,
+    "views": T.VIEWS,
+    "iters": T.ITERS,
+    "res": T.LABEL_RES,
+    "labels": T.LABELS,
+    "seed": T.SEED,
+    "sh_degree": T.int_in(0, 3, "SH degree"),
+    "sh_increase_every": T.int_in(1, None),
+    "fov_deg": T.float_in(1.0, 170.0, "field of view"),
+    "depth_scale": T.float_in(1e-9, 1e9, "depth scale"),
+}
 
 
 @dataclass
@@ -79,8 +89,19 @@ def row_schema() -> dict[str, type]:
     from ..splat.trainer import TrainConfig
 
     hints = typing.get_type_hints(TrainConfig)
-    return {"scene": str, "width": int, "source": str, "teacher": str, "views": int, "train": bool, "label": str,
-            "depth": str, "depth_scale": float, "depth_kind": str, **{f.name: hints[f.name] for f in dataclasses.fields(TrainConfig)}}
+    return {
+        "scene": str,
+        "width": int,
+        "source": str,
+        "teacher": str,
+        "views": int,
+        "train": bool,
+        "label": str,
+        "depth": str,
+        "depth_scale": float,
+        "depth_kind": str,
+        **{f.name: hints[f.name] for f in dataclasses.fields(TrainConfig)},
+    }
 
 
 def _choices() -> dict[str, tuple[str, ...]]:
@@ -88,8 +109,7 @@ def _choices() -> dict[str, tuple[str, ...]]:
     from ..splat.rasterize import BACKENDS
     from ..splat.strategy import STRATEGIES
 
-    return {"strategy": tuple(STRATEGIES), "backend": BACKENDS, "layout": LAYOUT_NAMES,
-            "depth_kind": ("distance", "z")}
+    return {"strategy": tuple(STRATEGIES), "backend": BACKENDS, "layout": LAYOUT_NAMES, "depth_kind": ("distance", "z")}
 
 
 def _unknown(path: Path, where: str, key: str, valid) -> PanoreconInputError:
@@ -99,8 +119,14 @@ def _unknown(path: Path, where: str, key: str, valid) -> PanoreconInputError:
 
 
 def _type_name(t) -> str:
-    return {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
-            dict: "a table"}[t]
+    return {
+        str: "a string",
+        int: "an integer",
+        float: "a number",
+        bool: "true or false",
+        list: "a list",
+        dict: "a table",
+    }[t]
 
 
 def check_value(path: Path, where: str, key: str, value, schema: dict, choices: dict) -> None:
@@ -110,8 +136,9 @@ def check_value(path: Path, where: str, key: str, value, schema: dict, choices: 
     if want is float and isinstance(value, int) and not isinstance(value, bool):
         ok = True
     if not ok:
-        raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r} is {type(value).__name__}; expected "
-                                  f"{_type_name(want)}")
+        raise PanoreconInputError(
+            f"suite {path}: {where} {key} = {value!r} is {type(value).__name__}; expected {_type_name(want)}"
+        )
     problem = None
     if key in choices and value not in choices[key]:
         problem = f"expected one of {', '.join(choices[key])}"
@@ -162,8 +189,9 @@ def _check_top(path: Path, data: dict) -> None:
             if k not in PAPER_ROW_KEYS:
                 raise _unknown(path, f"[paper] rows[{i + 1}]", k, PAPER_ROW_KEYS)
             if not isinstance(v, PAPER_ROW_KEYS[k]):
-                raise PanoreconInputError(f"suite {path}: [paper] rows[{i + 1}] {k} must be "
-                                          f"{_type_name(PAPER_ROW_KEYS[k])}, got {v!r}")
+                raise PanoreconInputError(
+                    f"suite {path}: [paper] rows[{i + 1}] {k} must be {_type_name(PAPER_ROW_KEYS[k])}, got {v!r}"
+                )
 
 
 def _with_root(value, root: str | None, path: Path):
@@ -227,11 +255,19 @@ def load_suite(path, root: str | None = None) -> Suite:
                 raise PanoreconInputError(f"suite {path}: depth_scale / depth_kind without a depth file")
             depth = (depth, spec.get("depth_scale"), spec.get("depth_kind", "distance")) if depth else None
             for scene in _expand_scene(_with_root(spec["scene"], root, path), path):
-                rows.append(Row(scene=scene, width=int(spec.get("width", 512)), source=spec["source"],
-                                teacher=spec.get("teacher"), views=spec.get("views"),
-                                train=train_cfg if spec.get("train", True) else None, label=label, depth=depth,
-                                extra={**extra, **{k: spec[k] for k in ("strategy", "labels", "iters", "res")
-                                                   if k in spec}}))
+                rows.append(
+                    Row(
+                        scene=scene,
+                        width=int(spec.get("width", 512)),
+                        source=spec["source"],
+                        teacher=spec.get("teacher"),
+                        views=spec.get("views"),
+                        train=train_cfg if spec.get("train", True) else None,
+                        label=label,
+                        depth=depth,
+                        extra={**extra, **{k: spec[k] for k in ("strategy", "labels", "iters", "res") if k in spec}},
+                    )
+                )
     if not rows:
         raise PanoreconInputError(f"suite {path}: the grid is empty")
     return Suite(path.stem, data.get("title", path.stem), rows, row_columns, data.get("paper", {}), path)
@@ -258,14 +294,24 @@ def resolve_names(suite: Suite) -> None:
         if row.scene not in scenes and row.scene not in checked:
             if row.scene.startswith(PROMPT_PREFIX):
                 if not os.environ.get(TEXT2PANO_MODEL_ENV):
-                    raise PanoreconInputError(f"{what}: scene {row.scene!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} "
-                                              "to a local diffusers model folder")
-            elif not (Path(row.scene).is_file() or Path(row.scene.removeprefix("rendered:")).is_dir()
-                      or is_dataset_name(row.scene)):
+                    raise PanoreconInputError(
+                        f"{what}: scene {row.scene!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} "
+                        "to a local diffusers model folder"
+                    )
+            elif not (
+                Path(row.scene).is_file()
+                or Path(row.scene.removeprefix("rendered:")).is_dir()
+                or is_dataset_name(row.scene)
+            ):
                 close = difflib.get_close_matches(row.scene, sorted(scenes), n=1, cutoff=0.5)
-                raise PanoreconInputError(f"{what}: unknown scene {row.scene!r}"
-                                          + (f"; did you mean {close[0]!r}?" if close else
-                                             "; expected a scene name (see `panorecon scenes list`) or an image"))
+                raise PanoreconInputError(
+                    f"{what}: unknown scene {row.scene!r}"
+                    + (
+                        f"; did you mean {close[0]!r}?"
+                        if close
+                        else "; expected a scene name (see `panorecon scenes list`) or an image"
+                    )
+                )
             checked.add(row.scene)
         try:
             spec = get_source(row.source)

@@ -10,12 +10,14 @@ a pinned reference does not shrink the other views' scales under noise) and fixe
 (ref: the view with the most valid pixels) and mean(b) = 0. A global shift of t is almost unobservable from
 overlaps (only through the variation of g across an overlap), so it is fixed by assuming the teacher's
 shifts average to zero over the views: its error is then the mean of the per-view shift errors, not one
-view's. Views not linked to the reference through overlaps keep a = 1, b = 0 and are reported. On scenes with a large depth range (outdoors) a small error in
-inverse distance still moves far points a lot: the intrinsic weakness of affine-invariant disparity.
+view's. Views not linked to the reference through overlaps keep a = 1, b = 0 and are reported. On scenes with a
+large depth range (outdoors) a small error in inverse distance still moves far points a lot: the intrinsic
+weakness of affine-invariant disparity.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -81,8 +83,14 @@ def align_affine_views(views: Sequence[ViewDepth], erp_height: int = 128, seed: 
             d = 1.0 / t if kind == "disparity" else t
         d[~v.valid | ~(d > 0) | ~np.isfinite(d)] = np.nan
         dists.append(d.astype(np.float32))
-    report = {"kind": kind, "reference_view": ref, "pairs": len(linked), "unconnected_views": unconnected,
-              "scale": a.tolist(), "shift": b.tolist()}
+    report = {
+        "kind": kind,
+        "reference_view": ref,
+        "pairs": len(linked),
+        "unconnected_views": unconnected,
+        "scale": a.tolist(),
+        "shift": b.tolist(),
+    }
     return dists, b, report
 
 

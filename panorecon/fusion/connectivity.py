@@ -4,10 +4,11 @@ Two views are linked when at least ``min_overlap`` ERP rays of a ``height`` x 2*
 and have valid depth in both. Views in different connected components share no equation of the fusion: their
 relative scale (and, for affine teachers, shift) is not measured but guessed, so such a result is flagged.
 """
+
 from __future__ import annotations
 
 import logging
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -33,17 +34,25 @@ def view_connectivity(views: Sequence[ViewDepth], height: int = 64, min_overlap:
     np.fill_diagonal(linked, False)
     n, label = connected_components(linked, directed=False)
     groups = sorted(([int(i) for i in np.flatnonzero(label == c)] for c in range(n)), key=lambda g: (-len(g), g))
-    return {"components": int(n), "groups": groups, "unconnected_views": sorted(i for g in groups[1:] for i in g),
-            "pairs": int(np.triu(linked).sum()), "min_overlap": min_overlap, "grid_height": height}
+    return {
+        "components": int(n),
+        "groups": groups,
+        "unconnected_views": sorted(i for g in groups[1:] for i in g),
+        "pairs": int(np.triu(linked).sum()),
+        "min_overlap": min_overlap,
+        "grid_height": height,
+    }
 
 
 def connectivity_warning(conn: dict) -> str | None:
     """One line for a result whose views do not all connect, or None."""
     if conn["components"] <= 1:
         return None
-    return (f"the views do not connect ({conn['components']} groups {conn['groups']} with no overlap of "
-            f">= {conn['min_overlap']} valid rays): their relative depth scale is unmeasured, the fused depth "
-            "is unreliable; use more views or a wider field of view")
+    return (
+        f"the views do not connect ({conn['components']} groups {conn['groups']} with no overlap of "
+        f">= {conn['min_overlap']} valid rays): their relative depth scale is unmeasured, the fused depth "
+        "is unreliable; use more views or a wider field of view"
+    )
 
 
 def check_connectivity(views: Sequence[ViewDepth]) -> dict:

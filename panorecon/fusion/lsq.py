@@ -5,8 +5,8 @@ Unknowns: x = log ray distance per ERP pixel, and s_i = log-scale per view (rela
 Energy, with c_i(p) = cos^2 of the angle between pixel p's ray and view i's optical axis and a(p) = cos(lat)
 the pixel's area weight::
 
-    E(x, s) = w_grad * sum_i sum_(p,q) a c_i (x_q - x_p - (l_i(q) - l_i(p)))^2     horizontal (wrapping) and vertical pairs
-            + w_lap  * sum_i sum_p     a c_i (Lap x (p) - Lap l_i (p))^2          5-point Laplacian, all taps seen by view i
+    E(x, s) = w_grad * sum_i sum_(p,q) a c_i (x_q - x_p - (l_i(q) - l_i(p)))^2   horizontal (wrapping), vertical pairs
+            + w_lap  * sum_i sum_p     a c_i (Lap x (p) - Lap l_i (p))^2        5-point Laplacian, taps seen by i
             + w_data * sum_i sum_p     a c_i (x_p - l_i(p) - s_i)^2                weak anchor: fixes the constant
 
 Border of the sky: a view's pixels within ``border_px`` of a large invalid region (the sky; isolated dropped
@@ -28,13 +28,14 @@ gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; t
 Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``). l_i is the
 view's log distance warped onto the level's ERP grid (``warp.py``; ``FusionConfig.sampling``).
 """
+
 from __future__ import annotations
 
 import functools
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -43,8 +44,14 @@ import scipy.sparse.linalg as spla
 from ..geometry import ViewDepth, erp_pixel_to_lonlat, sample_erp
 from .affine import align_affine_views
 from .connectivity import check_connectivity
-from .operators import (StencilNormalOperator, TorchStencilOperator, laplacian_centres, stacked_operator,
-                        transpose_apply, vertical_pairs)
+from .operators import (
+    StencilNormalOperator,
+    TorchStencilOperator,
+    laplacian_centres,
+    stacked_operator,
+    transpose_apply,
+    vertical_pairs,
+)
 from .warp import ErpObservation, warp_to_erp
 
 
@@ -93,8 +100,10 @@ class FusionConfig:
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
         if self.cg_device is not None and self.preconditioner != "jacobi":
-            raise ValueError(f"FusionConfig.cg_device={self.cg_device!r}: the torch CG has the Jacobi preconditioner "
-                             f"only (preconditioner={self.preconditioner!r})")
+            raise ValueError(
+                f"FusionConfig.cg_device={self.cg_device!r}: the torch CG has the Jacobi preconditioner "
+                f"only (preconditioner={self.preconditioner!r})"
+            )
         if not (self.tol > 0 and self.maxiter >= 1):
             raise ValueError(f"FusionConfig tol={self.tol}, maxiter={self.maxiter}: expected tol > 0, maxiter >= 1")
 
@@ -158,8 +167,11 @@ def _observe(views, dists, height, border_px: int = 0, cfg: FusionConfig | None 
     one, read one bilinear ray per pixel); without ``cfg`` nearest-neighbour."""
     width = 2 * height
     dirs = _erp_rays(height)
-    warp = {} if cfg is None else {"sampling": cfg.sampling, "supersample": cfg.supersample if finest else 1,
-                                   "edge_log": cfg.edge_log}
+    warp = (
+        {}
+        if cfg is None
+        else {"sampling": cfg.sampling, "supersample": cfg.supersample if finest else 1, "edge_log": cfg.edge_log}
+    )
     obs = [warp_to_erp(v, height, width, dirs, d, border_px, **warp) for v, d in zip(views, dists)]
     seen = np.zeros(height * width, bool)
     for o in obs:
@@ -203,10 +215,10 @@ def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
         Lr = np.roll(L, -1, axis=1)
         _accumulate(wgx[band], tgx[band], Lr - L, np.minimum(C, np.roll(C, -1, axis=1)))
         if hb > 1:
-            _accumulate(wgy[r0 * W:r1 * W], tgy[r0 * W:r1 * W], L[1:] - L[:-1], np.minimum(C[1:], C[:-1]))
+            _accumulate(wgy[r0 * W : r1 * W], tgy[r0 * W : r1 * W], L[1:] - L[:-1], np.minimum(C[1:], C[:-1]))
         if hb > 2:
             lv = (Lr + np.roll(L, 1, axis=1) - 4 * L)[1:-1] + L[:-2] + L[2:]
-            _accumulate(wl[(r0 + 1) * W:r1 * W], tl[(r0 + 1) * W:r1 * W], lv, C[1:-1])
+            _accumulate(wl[(r0 + 1) * W : r1 * W], tl[(r0 + 1) * W : r1 * W], lv, C[1:-1])
         data_w.append(cfg.w_data * o.confidence * area[o.index] * np.where(o.border, cfg.border_anchor, 1.0))
     _add_fill(border & ~reliable, level.seen, H, W, wgx, wgy, wl, cfg.border_smooth, cfg.border_laplacian)
     # Laplacian rows exist for interior rows only
@@ -254,8 +266,9 @@ def _trust_border_only_regions(level: _Level) -> tuple[np.ndarray, np.ndarray]:
     return reliable, border & ~reliable
 
 
-def _add_fill(fill: np.ndarray, seen: np.ndarray, H: int, W: int, wgx, wgy, wl, membrane: float,
-              laplacian: float) -> None:
+def _add_fill(
+    fill: np.ndarray, seen: np.ndarray, H: int, W: int, wgx, wgy, wl, membrane: float, laplacian: float
+) -> None:
     """Equations with target 0 for the pixels ``fill`` [H*W] that only border observations reach, added in place
     to the summed confidences (which later take the w_grad / w_lap factors): ``laplacian`` on a Laplacian row
     centred on every interior pixel whose stencil touches a fill pixel and lies in ``seen``, ``membrane`` on
@@ -269,7 +282,7 @@ def _add_fill(fill: np.ndarray, seen: np.ndarray, H: int, W: int, wgx, wgy, wl, 
     wgy += membrane * ((F[1:] | F[:-1]) & S[1:] & S[:-1]).ravel()
     touch = (F | left(F) | right(F))[1:-1] | F[:-2] | F[2:]
     inside = (S & left(S) & right(S))[1:-1] & S[:-2] & S[2:]
-    wl[W:(H - 1) * W] += laplacian * (touch & inside).ravel()
+    wl[W : (H - 1) * W] += laplacian * (touch & inside).ravel()
 
 
 def _accumulate(weight_sum: np.ndarray, target_sum: np.ndarray, value: np.ndarray, conf: np.ndarray) -> None:
@@ -330,7 +343,9 @@ def _preconditioner(A, cfg: FusionConfig):
     if cfg.preconditioner == "amg":
         import pyamg
 
-        ml = pyamg.smoothed_aggregation_solver(A, symmetry="symmetric", max_coarse=400, coarse_solver="splu", smooth=None)
+        ml = pyamg.smoothed_aggregation_solver(
+            A, symmetry="symmetric", max_coarse=400, coarse_solver="splu", smooth=None
+        )
         return ml.aspreconditioner(cycle="V")
     return sp.diags(1.0 / A.diagonal())
 
@@ -408,8 +423,12 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
     else:
         dists, view_shift, affine_report = [v.to_distance() for v in views], np.zeros(len(views)), None
     solver = f"pcg+{cfg.preconditioner}" + ("" if cfg.cg_device is None else f" (torch, {cfg.cg_device})")
-    report = {"solver": f"{solver}, coarse-to-fine", "levels": [], "affine_alignment": affine_report,
-              "connectivity": check_connectivity(views)}
+    report = {
+        "solver": f"{solver}, coarse-to-fine",
+        "levels": [],
+        "affine_alignment": affine_report,
+        "connectivity": check_connectivity(views),
+    }
     x = None
     s = None
     prev_h = None
@@ -433,8 +452,11 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         tol = cfg.tol if finest else max(cfg.tol, cfg.coarse_tol)
         for _ in range(max(1, cfg.scale_iters) if (h <= cfg.scale_max_height or li == 0) else 1):
             rhs = b0 + _data_rhs(level, data_w, s)
-            x, its, resid = (_solve_torch(A, rhs, x, tol, cfg.maxiter, cfg.cg_device) if torch_cg
-                             else _solve(A, rhs, x, tol, cfg.maxiter, M))
+            x, its, resid = (
+                _solve_torch(A, rhs, x, tol, cfg.maxiter, cfg.cg_device)
+                if torch_cg
+                else _solve(A, rhs, x, tol, cfg.maxiter, M)
+            )
             its_total += its
             if h > cfg.scale_max_height and li > 0:
                 break
@@ -443,18 +465,37 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
             s = s_new
             if converged:
                 break
-        report["levels"].append({"height": h, "width": 2 * h, "unknowns": h * 2 * h, "iterations": its_total,
-                                 "residual": resid, "seconds": time.perf_counter() - tl, "direct": direct})
+        report["levels"].append(
+            {
+                "height": h,
+                "width": 2 * h,
+                "unknowns": h * 2 * h,
+                "iterations": its_total,
+                "residual": resid,
+                "seconds": time.perf_counter() - tl,
+                "direct": direct,
+            }
+        )
         prev_h, prev_seen = h, level.seen
     seen = prev_seen.reshape(height, width)
     xs = x.reshape(height, width)
     if not np.isfinite(xs[seen]).all():
-        raise ValueError("fuse_views: the solve produced non-finite log-distances; check the weights and the teacher's depth range")
+        raise ValueError(
+            "fuse_views: the solve produced non-finite log-distances; check the weights and the teacher's depth range"
+        )
     distance = np.full((height, width), np.nan, np.float32)
     with np.errstate(over="ignore"):
         distance[seen] = np.exp(xs[seen]).astype(np.float32)
     if not np.isfinite(distance[seen]).all():
-        raise ValueError("fuse_views: fused distances overflow float32 (log-distance beyond 88); check the teacher's depth range")
-    report.update(iterations=[lv["iterations"] for lv in report["levels"]], residual=report["levels"][-1]["residual"],
-                  seconds=time.perf_counter() - t0, views=len(views), metric=metric, affine=affine)
+        raise ValueError(
+            "fuse_views: fused distances overflow float32 (log-distance beyond 88); check the teacher's depth range"
+        )
+    report.update(
+        iterations=[lv["iterations"] for lv in report["levels"]],
+        residual=report["levels"][-1]["residual"],
+        seconds=time.perf_counter() - t0,
+        views=len(views),
+        metric=metric,
+        affine=affine,
+    )
     return FusionResult(distance, seen, np.exp(s), view_shift, report)

@@ -1,4 +1,5 @@
 """Sparse difference operators on an H x W ERP grid (flat index r * W + c), wrapping across the seam."""
+
 from __future__ import annotations
 
 import functools
@@ -59,12 +60,22 @@ def stacked_operator(height: int, width: int):
     vp, vq = vertical_pairs(height, width)
     r, c = np.meshgrid(np.arange(1, height - 1), np.arange(width), indexing="ij")
     centre = (r * width + c).ravel()
-    lap_cols = np.stack([(r * width + (c - 1) % width).ravel(), (r * width + (c + 1) % width).ravel(),
-                         ((r - 1) * width + c).ravel(), ((r + 1) * width + c).ravel(), centre], 1)
-    indices = np.concatenate([np.stack([hq, hp], 1).ravel(), np.stack([vq, vp], 1).ravel(), lap_cols.ravel(),
-                              np.arange(n)]).astype(np.int32)
-    data = np.concatenate([np.tile([1.0, -1.0], len(hp) + len(vp)), np.tile([1.0, 1.0, 1.0, 1.0, -4.0], len(centre)),
-                           np.ones(n)])
+    lap_cols = np.stack(
+        [
+            (r * width + (c - 1) % width).ravel(),
+            (r * width + (c + 1) % width).ravel(),
+            ((r - 1) * width + c).ravel(),
+            ((r + 1) * width + c).ravel(),
+            centre,
+        ],
+        1,
+    )
+    indices = np.concatenate(
+        [np.stack([hq, hp], 1).ravel(), np.stack([vq, vp], 1).ravel(), lap_cols.ravel(), np.arange(n)]
+    ).astype(np.int32)
+    data = np.concatenate(
+        [np.tile([1.0, -1.0], len(hp) + len(vp)), np.tile([1.0, 1.0, 1.0, 1.0, -4.0], len(centre)), np.ones(n)]
+    )
     lengths = np.concatenate([np.full(len(hp) + len(vp), 2), np.full(len(centre), 5), np.ones(n, int)])
     indptr = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     B = sp.csr_matrix((data, indices, indptr), shape=(len(lengths), n))

@@ -1,4 +1,5 @@
 """Per-view depth warped onto an ERP grid: the observations every fusion solve starts from."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -44,17 +45,26 @@ def region_border(valid: np.ndarray, width_px: int) -> np.ndarray:
     if width_px <= 0:
         return np.zeros(valid.shape, bool)
     kernel = np.ones((3, 3), np.uint8)
-    large = cv2.morphologyEx((~valid).astype(np.uint8), cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_CONSTANT,
-                             borderValue=0).astype(bool)
+    large = cv2.morphologyEx(
+        (~valid).astype(np.uint8), cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0
+    ).astype(bool)
     if not large.any():
         return np.zeros(valid.shape, bool)
     dist = cv2.distanceTransform((~large).astype(np.uint8), cv2.DIST_L2, 5)
     return valid & (dist <= width_px)
 
 
-def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray | None = None,
-                distance: np.ndarray | None = None, border_px: int = 0, sampling: str = "nearest",
-                supersample: int = 1, edge_log: float = 0.1) -> ErpObservation:
+def warp_to_erp(
+    view: ViewDepth,
+    height: int,
+    width: int,
+    directions: np.ndarray | None = None,
+    distance: np.ndarray | None = None,
+    border_px: int = 0,
+    sampling: str = "nearest",
+    supersample: int = 1,
+    edge_log: float = 0.1,
+) -> ErpObservation:
     """Backward warp of a view's ray distance onto the ERP grid. ``directions`` [H*W, 3] may be passed to
     share the ERP rays between views; ``distance`` [h, w] overrides ``view.to_distance()`` (e.g. after affine
     alignment); observations within ``border_px`` view pixels of a large invalid region are flagged in
@@ -73,7 +83,7 @@ def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray
         directions = erp_directions(height, width).reshape(-1, 3)
     dist = view.to_distance() if distance is None else distance
     r0, r1 = view_row_band(view.camera, height)
-    index, rows, cols, cos, x, y = project_erp_rays(view.camera, directions[r0 * width:(r1 + 1) * width], True)
+    index, rows, cols, cos, x, y = project_erp_rays(view.camera, directions[r0 * width : (r1 + 1) * width], True)
     d = dist[rows, cols]
     ok = np.isfinite(d) & (d > 0)
     border = region_border(np.isfinite(dist) & (dist > 0), border_px)[rows, cols]
@@ -87,11 +97,12 @@ def warp_to_erp(view: ViewDepth, height: int, width: int, directions: np.ndarray
         if k == 1:
             value = sample_log_linear(log_view, x, y, edge_log)
         else:
-            value = _supersampled(view.camera, log_view, index + r0 * width, height, width, k, edge_log,
-                                  log_view[rows, cols])
+            value = _supersampled(
+                view.camera, log_view, index + r0 * width, height, width, k, edge_log, log_view[rows, cols]
+            )
         keep = np.isfinite(value)  # every sub-ray fell outside the view: the centre ray alone is not enough
         index, value, cos, border = index[keep], value[keep], cos[keep], border[keep]
-    return ErpObservation(index + r0 * width, value, cos ** 2, border)
+    return ErpObservation(index + r0 * width, value, cos**2, border)
 
 
 def supersample_rays(pixels: np.ndarray, height: int, width: int, k: int, sub: int | None = None) -> np.ndarray:
@@ -115,8 +126,16 @@ def footprint_supersample(camera: PinholeCamera, width: int, most: int = 3) -> i
     return int(np.clip(np.rint(2 * np.pi / width * camera.K[0, 0]), 1, most))
 
 
-def _supersampled(camera: PinholeCamera, log_view: np.ndarray, pixels: np.ndarray, height: int, width: int,
-                  k: int, edge_log: float, centre: np.ndarray) -> np.ndarray:
+def _supersampled(
+    camera: PinholeCamera,
+    log_view: np.ndarray,
+    pixels: np.ndarray,
+    height: int,
+    width: int,
+    k: int,
+    edge_log: float,
+    centre: np.ndarray,
+) -> np.ndarray:
     """Mean over k x k sub-rays of each ERP pixel of the edge-aware bilinear log distance, [len(pixels)],
     counting only reads within ``edge_log`` of ``centre`` [len(pixels)] (the view pixel under the ERP pixel's
     centre ray), so a pixel across a depth edge is not blended either (NaN where no sub-ray reads a value)."""
@@ -172,10 +191,25 @@ def view_row_band(camera: PinholeCamera, height: int) -> tuple[int, int]:
     border, widened by one row, extended to a pole when the pole is inside the view."""
     w, h = camera.width, camera.height
     t = np.linspace(0, 1, 33)
-    border = np.concatenate([np.stack([t * w, np.zeros_like(t)], 1), np.stack([t * w, np.full_like(t, h)], 1),
-                             np.stack([np.zeros_like(t), t * h], 1), np.stack([np.full_like(t, w), t * h], 1)])
-    rays = np.stack([(border[:, 0] - camera.K[0, 2]) / camera.K[0, 0], (border[:, 1] - camera.K[1, 2]) / camera.K[1, 1],
-                     np.ones(len(border))], 1) @ camera.rotation_c2w.T
+    border = np.concatenate(
+        [
+            np.stack([t * w, np.zeros_like(t)], 1),
+            np.stack([t * w, np.full_like(t, h)], 1),
+            np.stack([np.zeros_like(t), t * h], 1),
+            np.stack([np.full_like(t, w), t * h], 1),
+        ]
+    )
+    rays = (
+        np.stack(
+            [
+                (border[:, 0] - camera.K[0, 2]) / camera.K[0, 0],
+                (border[:, 1] - camera.K[1, 2]) / camera.K[1, 1],
+                np.ones(len(border)),
+            ],
+            1,
+        )
+        @ camera.rotation_c2w.T
+    )
     lat = np.arcsin(np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1), -1, 1))
     lat_max, lat_min = lat.max(), lat.min()
     for pole in (1.0, -1.0):

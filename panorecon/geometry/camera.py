@@ -4,6 +4,7 @@ Pixel convention: the centre of pixel (row i, col j) sits at continuous image co
 (x, y) = (j + 0.5, i + 0.5), as in gsplat; so a centred camera has cx = W / 2, cy = H / 2.
 cv2.remap samples at integer coordinates, so callers subtract 0.5 before remapping.
 """
+
 from __future__ import annotations
 
 import math
@@ -119,4 +120,6 @@ class PinholeCamera:
 def centred_camera(forward: np.ndarray, size: int, fov_deg: float, position=(0.0, 0.0, 0.0)) -> PinholeCamera:
     """Square perspective view of ``size`` pixels looking along ``forward`` from ``position``."""
     R = look_at_rotation(forward)
-    return PinholeCamera(intrinsics_from_fov(size, size, fov_deg), viewmat_from_pose(R, np.asarray(position, float)), size, size)
+    return PinholeCamera(
+        intrinsics_from_fov(size, size, fov_deg), viewmat_from_pose(R, np.asarray(position, float)), size, size
+    )

@@ -1,4 +1,5 @@
 """Perspective depth maps that say what they hold: ray distance, z-depth or disparity."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -34,7 +35,9 @@ class ViewDepth:
             raise ValueError(f"ViewDepth.kind={self.kind!r}; expected one of {DEPTH_KINDS}")
         shape = (self.camera.height, self.camera.width)
         if self.depth.shape != shape or self.valid.shape != shape:
-            raise ValueError(f"ViewDepth: depth {self.depth.shape} / valid {self.valid.shape} do not match the camera's {shape}")
+            raise ValueError(
+                f"ViewDepth: depth {self.depth.shape} / valid {self.valid.shape} do not match the camera's {shape}"
+            )
         self.depth = np.asarray(self.depth, dtype=np.float32)
         self.valid = np.asarray(self.valid, dtype=bool) & np.isfinite(self.depth)
 

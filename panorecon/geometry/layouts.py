@@ -3,6 +3,7 @@
 Every layout returns unit directions [N, 3] (float64, world frame of ``sphere.py``) and a
 ``Layout`` carries them with the field of view the views use by default.
 """
+
 from __future__ import annotations
 
 import math

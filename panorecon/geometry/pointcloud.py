@@ -1,5 +1,6 @@
 """The one point-cloud type every point source returns, with PLY I/O in NumPy (binary little-endian vertex
 PLYs, the layout Open3D writes; any other PLY is read through Open3D, imported only then)."""
+
 from __future__ import annotations
 
 import os
@@ -40,7 +41,7 @@ class PointCloud:
     def __len__(self) -> int:
         return len(self.xyz)
 
-    def subset(self, index: np.ndarray) -> "PointCloud":
+    def subset(self, index: np.ndarray) -> PointCloud:
         """The points selected by a boolean mask or index array (per-point scalars in meta['scalars'] too)."""
         meta = dict(self.meta)
         if "scalars" in meta:
@@ -74,9 +75,12 @@ class PointCloud:
         data = np.empty(len(self), dtype=[(n, "<i4" if n == "view_id" else "<f4") for n, _ in cols])
         for n, v in cols:
             data[n] = v
-        header = ("ply\nformat binary_little_endian 1.0\ncomment panorecon\n" f"element vertex {len(self)}\n"
-                  + "".join(f"property {'int' if n == 'view_id' else 'float'} {n}\n" for n, _ in cols)
-                  + "end_header\n")
+        header = (
+            "ply\nformat binary_little_endian 1.0\ncomment panorecon\n"
+            f"element vertex {len(self)}\n"
+            + "".join(f"property {'int' if n == 'view_id' else 'float'} {n}\n" for n, _ in cols)
+            + "end_header\n"
+        )
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")  # geometry sits below io/
@@ -89,7 +93,7 @@ class PointCloud:
             tmp.unlink(missing_ok=True)
 
     @classmethod
-    def load_ply(cls, path: str | os.PathLike) -> "PointCloud":
+    def load_ply(cls, path: str | os.PathLike) -> PointCloud:
         """Read a PLY written by ``save_ply`` or any PLY with positions (colours optional; uint8 ones are / 255),
         checked: the header, the file size against the header's vertex count (binary files), the count read,
         and finite positions. A bad file raises ``PanoreconInputError`` naming it."""
@@ -105,12 +109,15 @@ class PointCloud:
             fields = _open3d_fields(path)
         got = len(fields["x"]) if {"x", "y", "z"} <= set(fields) else 0
         if got != n:
-            raise PanoreconInputError(f"point cloud {path}: read {got} of the {n} vertices its header announces "
-                                      "(cut-off or corrupt file; expected a PLY with x, y, z)")
+            raise PanoreconInputError(
+                f"point cloud {path}: read {got} of the {n} vertices its header announces "
+                "(cut-off or corrupt file; expected a PLY with x, y, z)"
+            )
         xyz = np.stack([fields.pop(k) for k in ("x", "y", "z")], 1)
         if not np.isfinite(xyz).all():
-            raise PanoreconInputError(f"point cloud {path}: {int((~np.isfinite(xyz).all(1)).sum())} vertices have "
-                                      "NaN or Inf positions")
+            raise PanoreconInputError(
+                f"point cloud {path}: {int((~np.isfinite(xyz).all(1)).sum())} vertices have NaN or Inf positions"
+            )
         rgb = np.full_like(xyz, 0.5, dtype=np.float32)
         if {"red", "green", "blue"} <= set(fields):
             rgb = np.stack([fields.pop(k) for k in ("red", "green", "blue")], 1)
@@ -121,9 +128,24 @@ class PointCloud:
         return cls(xyz, rgb, normals, view_id, {"scalars": extra} if extra else {})
 
 
-_PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8", "uchar": "u1", "uint8": "u1",
-              "char": "i1", "int8": "i1", "ushort": "<u2", "uint16": "<u2", "short": "<i2", "int16": "<i2",
-              "uint": "<u4", "uint32": "<u4", "int": "<i4", "int32": "<i4"}
+_PLY_TYPES = {
+    "float": "<f4",
+    "float32": "<f4",
+    "double": "<f8",
+    "float64": "<f8",
+    "uchar": "u1",
+    "uint8": "u1",
+    "char": "i1",
+    "int8": "i1",
+    "ushort": "<u2",
+    "uint16": "<u2",
+    "short": "<i2",
+    "int16": "<i2",
+    "uint": "<u4",
+    "uint32": "<u4",
+    "int": "<i4",
+    "int32": "<i4",
+}
 
 
 def _binary_vertex_fields(raw: bytes) -> dict | None:
@@ -142,7 +164,7 @@ def _binary_vertex_fields(raw: bytes) -> dict | None:
         return None
     n = int(elements[0][2])
     dtype = np.dtype([(p[2], _PLY_TYPES[p[1]]) for p in props])
-    body = raw[end + len(b"end_header\n"):]
+    body = raw[end + len(b"end_header\n") :]
     if len(body) < n * dtype.itemsize:
         return None  # cut off: the caller's header check names the file
     data = np.frombuffer(body, dtype=dtype, count=n)
@@ -170,8 +192,24 @@ def _open3d_fields(path: Path) -> dict:
     return out
 
 
-_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+_PLY_SIZES = {
+    "char": 1,
+    "uchar": 1,
+    "int8": 1,
+    "uint8": 1,
+    "short": 2,
+    "ushort": 2,
+    "int16": 2,
+    "uint16": 2,
+    "int": 4,
+    "uint": 4,
+    "int32": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 
 
 def check_ply_header(path: Path) -> int:
@@ -205,8 +243,10 @@ def check_ply_header(path: Path) -> int:
             raise PanoreconInputError(f"point cloud {path}: malformed PLY header line {ln!r}") from None
     vertex = [e for e in elements if e[0] == "vertex"]
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian") or not vertex or vertex[0][1] <= 0:
-        raise PanoreconInputError(f"point cloud {path}: the PLY header has no vertices or an unknown format "
-                                  f"({fmt!r}); expected 'element vertex N' with N > 0")
+        raise PanoreconInputError(
+            f"point cloud {path}: the PLY header has no vertices or an unknown format "
+            f"({fmt!r}); expected 'element vertex N' with N > 0"
+        )
     if not {"x", "y", "z"} <= vertex_props:
         raise PanoreconInputError(f"point cloud {path}: its vertices have no x, y, z properties")
     if fmt == "ascii":
@@ -214,19 +254,24 @@ def check_ply_header(path: Path) -> int:
             f.seek(body_start)
             rows = sum(1 for line in f if line.strip())
         if rows < sum(e[1] for e in elements):
-            raise PanoreconInputError(f"point cloud {path}: {rows} data lines for the {sum(e[1] for e in elements)} "
-                                      "rows its header announces (cut-off or corrupt file)")
+            raise PanoreconInputError(
+                f"point cloud {path}: {rows} data lines for the {sum(e[1] for e in elements)} "
+                "rows its header announces (cut-off or corrupt file)"
+            )
     elif all(e[2] is not None for e in elements):
         expected = body_start + sum(e[1] * e[2] for e in elements)
         actual = path.stat().st_size
         if actual != expected:
-            raise PanoreconInputError(f"point cloud {path}: {actual} bytes, expected {expected} for the "
-                                      f"{vertex[0][1]} vertices its header announces (cut-off or corrupt file)")
+            raise PanoreconInputError(
+                f"point cloud {path}: {actual} bytes, expected {expected} for the "
+                f"{vertex[0][1]} vertices its header announces (cut-off or corrupt file)"
+            )
     return vertex[0][1]
 
 
-def erp_point_cloud(rgb: np.ndarray, distance: np.ndarray, keep: np.ndarray | None = None,
-                    origin=(0.0, 0.0, 0.0)) -> PointCloud:
+def erp_point_cloud(
+    rgb: np.ndarray, distance: np.ndarray, keep: np.ndarray | None = None, origin=(0.0, 0.0, 0.0)
+) -> PointCloud:
     """Back-project an ERP image [H, W, 3] (uint8 or float in [0, 1]) and ray distance [H, W] (metres).
 
     Pixels with non-finite or non-positive distance, or outside ``keep``, give no point.

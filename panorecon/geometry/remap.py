@@ -4,6 +4,7 @@ The ERP is padded before sampling: columns wrap around, and rows past a pole con
 side of the sphere (row -1-k, col c is row k, col c + W/2). So bilinear or bicubic taps that cross the
 seam or a pole read the right neighbours, never a clamped or black border.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -52,8 +53,13 @@ def sample_erp(erp: np.ndarray, directions: np.ndarray, interpolation: str = "li
     map_y = np.zeros(m, np.float32)
     map_x[:n] = cols + _PAD
     map_y[:n] = rows + _PAD
-    out = cv2.remap(pad_erp(erp), map_x.reshape(-1, 4096), map_y.reshape(-1, 4096), _interp_flag(interpolation),
-                    borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(
+        pad_erp(erp),
+        map_x.reshape(-1, 4096),
+        map_y.reshape(-1, 4096),
+        _interp_flag(interpolation),
+        borderMode=cv2.BORDER_REPLICATE,
+    )
     return out.reshape((m,) + erp.shape[2:])[:n].reshape(directions.shape[:-1] + erp.shape[2:])
 
 

@@ -10,6 +10,7 @@ lon = (u - 0.5) * 2*pi (0 at the centre column), lat = (0.5 - v) * pi (row 0 is 
 
 Every function accepts numpy arrays or torch tensors and returns the same kind (float dtype kept).
 """
+
 from __future__ import annotations
 
 import math

@@ -1,7 +1,25 @@
 """Checked, atomic file I/O shared by every layer: images, arrays, JSON; and the process's peak memory."""
-from .files import (atomic_write, file_sha256, quiet_native_stderr, read_image, write_image, save_npy, write_json,
-                    PanoreconInputError)
+
+from .files import (
+    PanoreconInputError,
+    atomic_write,
+    file_sha256,
+    quiet_native_stderr,
+    read_image,
+    save_npy,
+    write_image,
+    write_json,
+)
 from .process import peak_rss_mb
 
-__all__ = ["atomic_write", "file_sha256", "quiet_native_stderr", "read_image", "write_image", "save_npy", "write_json",
-           "PanoreconInputError", "peak_rss_mb"]
+__all__ = [
+    "atomic_write",
+    "file_sha256",
+    "quiet_native_stderr",
+    "read_image",
+    "write_image",
+    "save_npy",
+    "write_json",
+    "PanoreconInputError",
+    "peak_rss_mb",
+]

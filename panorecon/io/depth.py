@@ -8,6 +8,7 @@ anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is
 - ``z``: metres along the axis of the cube face the ray passes through, as in a panorama stitched from six
   z-depth cube faces; distance = z / max(|dx|, |dy|, |dz|) for the unit ray d.
 """
+
 from __future__ import annotations
 
 import os
@@ -43,8 +44,10 @@ def read_depth_raw(path: str | os.PathLike) -> np.ndarray:
         if raw.ndim != 2:
             raise PanoreconInputError(f"{path}: expected a single-channel depth image, got {raw.shape[2]} channels")
         if raw.dtype != np.uint16:
-            raise PanoreconInputError(f"{path}: depth PNG is {raw.dtype.itemsize * 8}-bit; expected 16-bit "
-                                      "(an 8-bit PNG cannot hold metric depth)")
+            raise PanoreconInputError(
+                f"{path}: depth PNG is {raw.dtype.itemsize * 8}-bit; expected 16-bit "
+                "(an 8-bit PNG cannot hold metric depth)"
+            )
         out = raw.astype(np.float64)
         out[raw == PNG_MISSING] = np.nan
     elif suffix == ".exr":
@@ -65,8 +68,10 @@ def _read_exr(path: Path) -> np.ndarray:
     try:
         import OpenEXR
     except ImportError:
-        raise PanoreconInputError(f"{path}: reading EXR depth needs the OpenEXR package: "
-                                  "pip install 'panorecon[exr]' (or pip install openexr)") from None
+        raise PanoreconInputError(
+            f"{path}: reading EXR depth needs the OpenEXR package: "
+            "pip install 'panorecon[exr]' (or pip install openexr)"
+        ) from None
     try:
         with OpenEXR.File(str(path)) as f:
             channels = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
@@ -76,8 +81,10 @@ def _read_exr(path: Path) -> np.ndarray:
     if name is None and len(channels) == 1:
         name = next(iter(channels))
     if name is None:
-        raise PanoreconInputError(f"{path}: no depth channel among {sorted(channels)} "
-                                  f"(expected one of {', '.join(_EXR_CHANNELS)} or a single channel)")
+        raise PanoreconInputError(
+            f"{path}: no depth channel among {sorted(channels)} "
+            f"(expected one of {', '.join(_EXR_CHANNELS)} or a single channel)"
+        )
     data = channels[name]
     if data.ndim == 3:  # an RGB(A) layer stored as one channel of pixel tuples: its first component
         data = data[..., 0]

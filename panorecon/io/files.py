@@ -1,4 +1,5 @@
 """File I/O with one clear error per bad input and no half-written output (temp file, then rename)."""
+
 from __future__ import annotations
 
 import contextlib
@@ -105,7 +106,9 @@ def check_erp_shape(hw: tuple[int, int], what: str) -> None:
     """Raise a PanoreconInputError unless (H, W) is a 2:1 panorama no wider than 16384 pixels."""
     h, w = hw
     if w != 2 * h:
-        raise PanoreconInputError(f"{what}: size {w}x{h} is not an equirectangular panorama (expected width = 2 x height)")
+        raise PanoreconInputError(
+            f"{what}: size {w}x{h} is not an equirectangular panorama (expected width = 2 x height)"
+        )
     if w > MAX_ERP_WIDTH:
         raise PanoreconInputError(f"{what}: width {w} is larger than the supported {MAX_ERP_WIDTH} pixels")
     if h < 2:

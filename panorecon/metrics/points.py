@@ -6,6 +6,7 @@ chamfer: (accuracy + completeness) / 2; fscore: harmonic mean of precision (shar
 within ``threshold`` of the truth) and recall (share of true points within ``threshold`` of the prediction).
 Clouds larger than ``max_points`` are subsampled uniformly at random with a fixed seed first.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,7 +24,9 @@ def _subsample(xyz: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     return xyz if len(xyz) <= n else xyz[rng.choice(len(xyz), n, replace=False)]
 
 
-def point_metrics(pred: np.ndarray, truth: np.ndarray, threshold: float = 0.05, max_points: int = 200_000, seed: int = 0) -> dict:
+def point_metrics(
+    pred: np.ndarray, truth: np.ndarray, threshold: float = 0.05, max_points: int = 200_000, seed: int = 0
+) -> dict:
     """pred [N, 3], truth [M, 3] in metres -> count, accuracy, completeness, chamfer, fscore, threshold."""
     if len(pred) == 0 or len(truth) == 0:
         raise ValueError(f"point_metrics: empty cloud (prediction {len(pred)} points, truth {len(truth)} points)")
@@ -34,5 +37,12 @@ def point_metrics(pred: np.ndarray, truth: np.ndarray, threshold: float = 0.05, 
     precision, recall = float(np.mean(d_pt < threshold)), float(np.mean(d_tp < threshold))
     f = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
     acc, comp = float(d_pt.mean()), float(d_tp.mean())
-    return {"count": int(len(pred)), "accuracy": acc, "completeness": comp, "chamfer": 0.5 * (acc + comp),
-            "fscore": f, "threshold": threshold, "subsampled_to": int(min(len(pred), max_points))}
+    return {
+        "count": int(len(pred)),
+        "accuracy": acc,
+        "completeness": comp,
+        "chamfer": 0.5 * (acc + comp),
+        "fscore": f,
+        "threshold": threshold,
+        "subsampled_to": int(min(len(pred), max_points)),
+    }

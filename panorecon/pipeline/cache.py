@@ -12,6 +12,7 @@ missing or changed, is a corrupt entry: it is logged as a warning naming it, rem
 recomputed. ``lock`` serialises the computation of one stage between processes (two ``ablate`` runs on one
 cache compute each stage once; the second reads the first's result).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -19,7 +20,7 @@ import fcntl
 import hashlib
 import json
 import logging
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 from ..io import file_sha256, write_json
@@ -29,7 +30,7 @@ log = logging.getLogger("panorecon.cache")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 
 
-@lru_cache(maxsize=None)
+@cache
 def code_digest(subpackages: tuple[str, ...]) -> str:
     """SHA-256 (16 hex) over the .py and .cpp files of the named panorecon subpackages."""
     h = hashlib.sha256()
@@ -42,8 +43,11 @@ def code_digest(subpackages: tuple[str, ...]) -> str:
 
 
 def stage_key(stage: str, params: dict, upstream: tuple[str, ...] = (), code: tuple[str, ...] = ()) -> str:
-    blob = json.dumps({"stage": stage, "params": params, "upstream": list(upstream), "code": code_digest(code)},
-                      sort_keys=True, default=str)
+    blob = json.dumps(
+        {"stage": stage, "params": params, "upstream": list(upstream), "code": code_digest(code)},
+        sort_keys=True,
+        default=str,
+    )
     return hashlib.sha256(blob.encode()).hexdigest()[:20]
 
 

@@ -3,10 +3,12 @@
 A row of an ablation names a scene (and its ERP width; ``prompt:<text>`` generates one, see
 ``load_row_scene``), a point source with its teacher and view count, and,
 when it trains, a ``TrainConfig``. ``points`` runs the source (teacher depths and fusion inside it) and keeps
-its cloud (``cloud.ply``: the fused distances along the ERP rays) and report; ``train`` fits Gaussians from that cloud. Scenes are re-rendered on
+its cloud (``cloud.ply``: the fused distances along the ERP rays) and report; ``train`` fits Gaussians from that
+cloud. Scenes are re-rendered on
 load (deterministic, well under a second at the widths suites use) and enter every key by name and width.
 Each stage records its seconds and the peak resident memory of the process that computed it.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -48,13 +50,24 @@ class Row:
         return {"scene": self.scene, "width": self.width, **({"depth": list(self.depth)} if self.depth else {})}
 
     def points_key(self) -> str:
-        return stage_key("points", {**self._scene_params(), "source": self.source,
-                                    "teacher": teacher_fingerprint(self._teacher_for_points()), "views": self.views},
-                         code=POINTS_CODE)
+        return stage_key(
+            "points",
+            {
+                **self._scene_params(),
+                "source": self.source,
+                "teacher": teacher_fingerprint(self._teacher_for_points()),
+                "views": self.views,
+            },
+            code=POINTS_CODE,
+        )
 
     def train_key(self) -> str:
-        return stage_key("train", {**self._scene_params(), "teacher": teacher_fingerprint(self.teacher),
-                                   "config": self.train_config_dict()}, (self.points_key(),), TRAIN_CODE)
+        return stage_key(
+            "train",
+            {**self._scene_params(), "teacher": teacher_fingerprint(self.teacher), "config": self.train_config_dict()},
+            (self.points_key(),),
+            TRAIN_CODE,
+        )
 
     def train_config_dict(self) -> dict:
         from ..splat.trainer import TrainConfig
@@ -93,10 +106,12 @@ def load_row_scene(name: str, width: int, cache: StageCache, depth: tuple | None
 
     model = os.environ.get(TEXT2PANO_MODEL_ENV)
     if not model:
-        raise PanoreconInputError(f"scene {name!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} to a local diffusers "
-                                  "model folder (see `panorecon generate --help`)")
+        raise PanoreconInputError(
+            f"scene {name!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} to a local diffusers "
+            "model folder (see `panorecon generate --help`)"
+        )
     cfg = GenerateConfig(width=width, steps=int(os.environ.get("PANORECON_TEXT2PANO_STEPS", 50)))
-    png = generate_cached(name[len(PROMPT_PREFIX):], model, cfg, cache.root / "text2pano")
+    png = generate_cached(name[len(PROMPT_PREFIX) :], model, cfg, cache.root / "text2pano")
     return scene_from_image(png, width, name=name, description=f"generated from {name!r} by {model}")
 
 
@@ -117,8 +132,10 @@ def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = N
         if not teacher:
             teacher.append(get_teacher(teacher_spec))
         with np.errstate(divide="ignore"):
-            return [(v.depth if v.kind != "disparity" else 1.0 / v.depth).astype(np.float32)
-                    for v in teacher[0].predict_views(scene, cameras)]
+            return [
+                (v.depth if v.kind != "disparity" else 1.0 / v.depth).astype(np.float32)
+                for v in teacher[0].predict_views(scene, cameras)
+            ]
 
     def depth_fn(cameras):
         if cache_dir is None:
@@ -126,8 +143,11 @@ def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = N
         h = hashlib.sha256(json.dumps([fingerprint, code_digest(("teachers", "geometry"))]).encode())
         h.update(np.ascontiguousarray(scene.rgb).tobytes())
         for c in cameras:
-            h.update(np.asarray([c.width, c.height], np.float64).tobytes() + np.asarray(c.K, np.float64).tobytes()
-                     + np.asarray(c.viewmat, np.float64).tobytes())
+            h.update(
+                np.asarray([c.width, c.height], np.float64).tobytes()
+                + np.asarray(c.K, np.float64).tobytes()
+                + np.asarray(c.viewmat, np.float64).tobytes()
+            )
         path = Path(cache_dir) / f"{h.hexdigest()[:20]}.npz"
         if path.is_file():
             with np.load(path) as z:
@@ -140,7 +160,7 @@ def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = N
     return depth_fn
 
 
-def fusion_config_for(device) -> "FusionConfig | None":
+def fusion_config_for(device) -> FusionConfig | None:
     """The fusion settings for a run on ``device`` (a torch.device): the torch CG on a GPU, else the defaults
     (SciPy's CG). The device is not part of any stage key: results agree to the solver's tolerance."""
     if device is None or device.type != "cuda":
@@ -150,8 +170,9 @@ def fusion_config_for(device) -> "FusionConfig | None":
     return FusionConfig(cg_device=str(device))
 
 
-def run_points(cache: StageCache, row: Row, key: str | None = None, provenance: dict | None = None,
-               device=None) -> dict:
+def run_points(
+    cache: StageCache, row: Row, key: str | None = None, provenance: dict | None = None, device=None
+) -> dict:
     """The point source's record: report, seconds, peak_rss_mb, cached (bool); cloud.ply in its folder.
     ``key``: the stage key as the caller computed it (a run keeps the keys it started with even if the code
     changes meanwhile); default ``row.points_key()``. ``provenance`` (e.g. the commit) is stored in the record
@@ -179,20 +200,41 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
     except PanoreconInputError as e:  # a source that cannot run here says why ("n/a: needs a CUDA build ...")
         if not str(e).startswith("n/a"):
             raise
-        record = {"stage": "points", "key": key, "unavailable": str(e), "scene_seconds": scene_s,
-                  "seconds": time.perf_counter() - t, "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
+        record = {
+            "stage": "points",
+            "key": key,
+            "unavailable": str(e),
+            "scene_seconds": scene_s,
+            "seconds": time.perf_counter() - t,
+            "peak_rss_mb": peak_rss_mb(),
+            **(provenance or {}),
+        }
         return cache.finish("points", key, record)
     folder = cache.folder("points", key)
     pc.save_ply(folder / "cloud.ply")
     write_json(folder / "report.json", report)
-    record = {"stage": "points", "key": key, "report": report, "scene_seconds": scene_s,
-              "seconds": report["seconds"]["total"], "peak_rss_mb": peak_rss_mb(), "points": len(pc),
-              **(provenance or {})}
+    record = {
+        "stage": "points",
+        "key": key,
+        "report": report,
+        "scene_seconds": scene_s,
+        "seconds": report["seconds"]["total"],
+        "peak_rss_mb": peak_rss_mb(),
+        "points": len(pc),
+        **(provenance or {}),
+    }
     return cache.finish("points", key, record, files=("cloud.ply", "report.json"))
 
 
-def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | None = None,
-              points_key: str | None = None, provenance: dict | None = None, device=None) -> dict:
+def run_train(
+    cache: StageCache,
+    row: Row,
+    progress: bool = False,
+    key: str | None = None,
+    points_key: str | None = None,
+    provenance: dict | None = None,
+    device=None,
+) -> dict:
     """The trainer's record: metrics (metrics.json), seconds, peak_rss_mb, cached; resumes an interrupted run.
     ``provenance`` as in :func:`run_points`; ``device`` a torch.device (None: 'auto')."""
     key = key or row.train_key()
@@ -209,19 +251,38 @@ def run_train(cache: StageCache, row: Row, progress: bool = False, key: str | No
         return {**_compute_train(cache, row, key, points, progress, provenance, device), "cached": False}
 
 
-def _compute_train(cache: StageCache, row: Row, key: str, points: dict, progress: bool,
-                   provenance: dict | None, device) -> dict:
+def _compute_train(
+    cache: StageCache, row: Row, key: str, points: dict, progress: bool, provenance: dict | None, device
+) -> dict:
     from ..geometry import PointCloud
     from ..splat.trainer import TrainConfig, train
 
     scene = load_row_scene(row.scene, row.width, cache, row.depth)
     cloud_path = cache.folder("points", points["key"]) / "cloud.ply"
     cloud = PointCloud.load_ply(cloud_path)
-    inputs = {"scene": row.scene, "width": row.width, "source": row.source, "teacher": row.teacher,
-              "points_key": points["key"]}
-    metrics = train(scene, cloud, TrainConfig(**(row.train or {})), cache.folder("train", key),
-                    teacher_depth_fn(scene, row.teacher, cache.root / "teacher_views"), progress=progress,
-                    inputs=inputs, device=device or "auto")
-    record = {"stage": "train", "key": key, "metrics": metrics, "seconds": metrics["seconds"]["total"],
-              "peak_rss_mb": peak_rss_mb(), **(provenance or {})}
+    inputs = {
+        "scene": row.scene,
+        "width": row.width,
+        "source": row.source,
+        "teacher": row.teacher,
+        "points_key": points["key"],
+    }
+    metrics = train(
+        scene,
+        cloud,
+        TrainConfig(**(row.train or {})),
+        cache.folder("train", key),
+        teacher_depth_fn(scene, row.teacher, cache.root / "teacher_views"),
+        progress=progress,
+        inputs=inputs,
+        device=device or "auto",
+    )
+    record = {
+        "stage": "train",
+        "key": key,
+        "metrics": metrics,
+        "seconds": metrics["seconds"]["total"],
+        "peak_rss_mb": peak_rss_mb(),
+        **(provenance or {}),
+    }
     return cache.finish("train", key, record, files=("metrics.json", "point_cloud.ply"))

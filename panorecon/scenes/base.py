@@ -1,5 +1,6 @@
 """The one ``Scene`` type: an ERP panorama, its ray distance where known, masks, and for synthetic
 scenes a ``World`` that renders any view from any position (held-out truth)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -1,5 +1,6 @@
 """Names and descriptions of the synthetic scenes, importable without Open3D (the scenes themselves are
 built by ``synthetic.py``, which needs it): the registry lists them and builds one only when it is loaded."""
+
 from __future__ import annotations
 
 DEFAULT_WIDTH = 1024  # ERP width (pixels) of a synthetic scene when none is asked for
@@ -9,11 +10,13 @@ SYNTHETIC_SCENES = {
     "bedroom": "bedroom: bed with pillows and headboard, nightstands and lamp, wardrobe, desk, rug, window (indoor)",
     "bathroom": "luxury bathroom: tiled walls, marble tub, vanity with basin and mirror, toilet, plant (indoor)",
     "library": "library: wall shelves full of books, free-standing stacks, reading tables and chairs (indoor)",
-    "exhibition-hall": ("indoor exhibition hall: art installations on pedestals, glass display cases, large posters, "
-                        "spotlights"),
+    "exhibition-hall": (
+        "indoor exhibition hall: art installations on pedestals, glass display cases, large posters, spotlights"
+    ),
     "mountain": "mountain landscape: ridged terrain with rock and snow, sky at infinity (outdoor)",
     "grassland": "grassland with blue sky: rolling hills, yurts, a fence line, clouds (outdoor)",
     "beach": "waves on the beach: sand dunes, a wavy sea to the horizon, umbrellas and rocks (outdoor)",
-    "city-plaza": ("outdoor city plaza: central fountain, stone benches, tiled ground, street lamps, buildings, "
-                   "open space"),
+    "city-plaza": (
+        "outdoor city plaza: central fountain, stone benches, tiled ground, street lamps, buildings, open space"
+    ),
 }

@@ -15,12 +15,13 @@ Positions are metres in the dataset's world frame. The panoramas of one space ar
 orientation (only their centres differ): Structured3D renders its panoramas so; for Stanford2D3D it is an
 assumption this adapter does not check (the pose JSON's ``camera_rt_matrix`` is not read).
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -82,13 +83,14 @@ def _s2d3d_locate(root: Path, key: str) -> Panorama:
         raise PanoreconInputError(f"{pose_path}: not a 2D-3D-S pose file with a camera_location ({e})") from None
     if position.shape != (3,) or not np.isfinite(position).all():
         raise PanoreconInputError(f"{pose_path}: camera_location {position.tolist()} is not three finite numbers")
-    return Panorama(f"stanford2d3d:{key}", rgb, DepthSpec(depth, 1 / 512, "distance", source="2D-3D-S, 1/512 m"),
-                    position)
+    return Panorama(
+        f"stanford2d3d:{key}", rgb, DepthSpec(depth, 1 / 512, "distance", source="2D-3D-S, 1/512 m"), position
+    )
 
 
 def _s2d3d_keys(root: Path) -> list[str]:
     tail = f"{_S2D3D_SUFFIX}rgb.png"
-    return sorted(f"{p.parents[2].name}/{p.name[:-len(tail)]}" for p in root.glob(f"*/pano/rgb/*{tail}"))
+    return sorted(f"{p.parents[2].name}/{p.name[: -len(tail)]}" for p in root.glob(f"*/pano/rgb/*{tail}"))
 
 
 # ---------------------------------------------------------------- Structured3D
@@ -107,13 +109,13 @@ def _s3d_locate(root: Path, key: str) -> Panorama:
         raise PanoreconInputError(f"{xyz}: expected three numbers (millimetres), {e}") from None
     if position.shape != (3,) or not np.isfinite(position).all():
         raise PanoreconInputError(f"{xyz}: expected three finite numbers (millimetres)")
-    return Panorama(f"structured3d:{key}", rgb, DepthSpec(depth, 1e-3, "distance", source="Structured3D, mm"),
-                    position)
+    return Panorama(f"structured3d:{key}", rgb, DepthSpec(depth, 1e-3, "distance", source="Structured3D, mm"), position)
 
 
 def _s3d_keys(root: Path) -> list[str]:
-    return sorted(f"{p.parents[4].name}/{p.parents[2].name}"
-                  for p in root.glob("*/2D_rendering/*/panorama/full/rgb_rawlight.png"))
+    return sorted(
+        f"{p.parents[4].name}/{p.parents[2].name}" for p in root.glob("*/2D_rendering/*/panorama/full/rgb_rawlight.png")
+    )
 
 
 # ---------------------------------------------------------------- Matterport3D (360° panoramas)
@@ -122,28 +124,50 @@ def _s3d_keys(root: Path) -> list[str]:
 # <scene>/pano_color/<pano>.jpg and <scene>/pano_depth/<pano>.png = uint16(ray distance * 4000); no pose file.
 def _mp3d_locate(root: Path, key: str) -> Panorama:
     scene, pano = key.split("/")
-    rgb = next((p for p in (root / scene / "pano_color" / f"{pano}{e}" for e in (".jpg", ".png")) if p.is_file()),
-               None)
+    rgb = next((p for p in (root / scene / "pano_color" / f"{pano}{e}" for e in (".jpg", ".png")) if p.is_file()), None)
     if rgb is None:
-        raise PanoreconInputError(f"{root / scene / 'pano_color' / pano}.jpg: no such file "
-                                  "(Matterport3D panorama image)")
+        raise PanoreconInputError(
+            f"{root / scene / 'pano_color' / pano}.jpg: no such file (Matterport3D panorama image)"
+        )
     depth = _need(root / scene / "pano_depth" / f"{pano}.png", "Matterport3D panorama depth")
-    return Panorama(f"matterport3d:{key}", rgb, DepthSpec(depth, 1 / 4000, "distance", source="Matterport3D, 1/4000 m"),
-                    None)
+    return Panorama(
+        f"matterport3d:{key}", rgb, DepthSpec(depth, 1 / 4000, "distance", source="Matterport3D, 1/4000 m"), None
+    )
 
 
 def _mp3d_keys(root: Path) -> list[str]:
     return sorted({f"{p.parents[1].name}/{p.stem}" for e in ("jpg", "png") for p in root.glob(f"*/pano_color/*.{e}")})
 
 
-DATASETS = {d.prefix: d for d in (
-    Dataset("stanford2d3d", "Stanford2D3D (2D-3D-S) area panoramas, <root>/<area>/<pano id>", 2,
-            _s2d3d_locate, _s2d3d_keys, lambda key: key.split("/")[0]),
-    Dataset("structured3d", "Structured3D room panoramas, <root>/<scene>/<room>", 2,
-            _s3d_locate, _s3d_keys, lambda key: key.split("/")[0]),
-    Dataset("matterport3d", "Matterport3D 360° panoramas (UniFuse layout), <root>/<scene>/<pano>", 2,
-            _mp3d_locate, _mp3d_keys, lambda key: key.split("/")[0]),
-)}
+DATASETS = {
+    d.prefix: d
+    for d in (
+        Dataset(
+            "stanford2d3d",
+            "Stanford2D3D (2D-3D-S) area panoramas, <root>/<area>/<pano id>",
+            2,
+            _s2d3d_locate,
+            _s2d3d_keys,
+            lambda key: key.split("/")[0],
+        ),
+        Dataset(
+            "structured3d",
+            "Structured3D room panoramas, <root>/<scene>/<room>",
+            2,
+            _s3d_locate,
+            _s3d_keys,
+            lambda key: key.split("/")[0],
+        ),
+        Dataset(
+            "matterport3d",
+            "Matterport3D 360° panoramas (UniFuse layout), <root>/<scene>/<pano>",
+            2,
+            _mp3d_locate,
+            _mp3d_keys,
+            lambda key: key.split("/")[0],
+        ),
+    )
+}
 
 
 def is_dataset_name(name: str) -> bool:
@@ -157,7 +181,7 @@ def split_name(name: str) -> tuple[Dataset, Path, str]:
     parts = Path(rest).parts
     if len(parts) <= ds.key_parts:
         raise PanoreconInputError(f"scene {name!r}: expected {ds.description}")
-    return ds, Path(*parts[:-ds.key_parts]), "/".join(parts[-ds.key_parts:])
+    return ds, Path(*parts[: -ds.key_parts]), "/".join(parts[-ds.key_parts :])
 
 
 def locate(name: str) -> Panorama:
@@ -176,10 +200,20 @@ def load_dataset_scene(name: str, width: int | None = None):
     if pano.position is not None:
         group = ds.group(key)
         others = [f"{ds.prefix}:{root / k}" for k in ds.keys(root) if k != key and ds.group(k) == group]
-    meta = {"dataset": ds.prefix, "key": key,
-            "position": None if pano.position is None else pano.position.tolist(), "others": others}
-    return scene_from_image(pano.rgb, width, name=pano.name, depth=pano.depth, meta=meta,
-                            description=f"{ds.description.split(',')[0]}: {key}, true depth ({pano.depth.source})")
+    meta = {
+        "dataset": ds.prefix,
+        "key": key,
+        "position": None if pano.position is None else pano.position.tolist(),
+        "others": others,
+    }
+    return scene_from_image(
+        pano.rgb,
+        width,
+        name=pano.name,
+        depth=pano.depth,
+        meta=meta,
+        description=f"{ds.description.split(',')[0]}: {key}, true depth ({pano.depth.source})",
+    )
 
 
 def list_root(root: Path) -> list[tuple[str, str]]:

@@ -1,4 +1,5 @@
 """Several panoramas of one synthetic scene from positions inside its free space (multi-view baselines)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,8 +29,9 @@ def panorama_positions(radius: float, k: int, layout: str = "ring", seed: int = 
     raise PanoreconInputError(f"layout {layout!r}: expected one of {', '.join(POSITION_LAYOUTS)}")
 
 
-def render_positions(scene: Scene, k: int, layout: str = "ring", radius_fraction: float = 0.3,
-                     seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def render_positions(
+    scene: Scene, k: int, layout: str = "ring", radius_fraction: float = 0.3, seed: int = 0
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Render K ERP panoramas of a synthetic scene at its own size from positions in its free space.
 
     The positions lie within ``radius_fraction`` x ``scene.world.free_space_radius()`` of the panorama
@@ -37,8 +39,9 @@ def render_positions(scene: Scene, k: int, layout: str = "ring", radius_fraction
     uint8, ray distance [H, W] float32 metres with inf for sky).
     """
     if scene.world is None:
-        raise PanoreconInputError(f"n/a: scene {scene.name!r} has no world to render new positions from "
-                                  "(synthetic scenes only)")
+        raise PanoreconInputError(
+            f"n/a: scene {scene.name!r} has no world to render new positions from (synthetic scenes only)"
+        )
     if not 0.0 <= radius_fraction <= 1.0:
         raise PanoreconInputError(f"radius_fraction={radius_fraction}: expected a value in [0, 1]")
     radius = radius_fraction * scene.world.free_space_radius()

@@ -3,9 +3,10 @@ surface point, so a point looks the same from every viewpoint) and simple meshes
 
 All textures take points [M, 3] and unit normals [M, 3] (float64, metres) and return albedo [M, 3] in [0, 1].
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import open3d as o3d
@@ -15,9 +16,16 @@ Texture = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 # ---------------------------------------------------------------- noise
 LATTICE_OFFSET = 0.5 / np.sqrt(2.0)  # irrational: keeps round-coordinate faces off cell boundaries
+
+
 def _hash(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, seed: int) -> np.ndarray:
     """Integer lattice coordinates -> pseudo-random floats in [0, 1) (a 32-bit integer hash)."""
-    h = (ix.astype(np.int64) * 73856093) ^ (iy.astype(np.int64) * 19349663) ^ (iz.astype(np.int64) * 83492791) ^ (seed * 2654435761)
+    h = (
+        (ix.astype(np.int64) * 73856093)
+        ^ (iy.astype(np.int64) * 19349663)
+        ^ (iz.astype(np.int64) * 83492791)
+        ^ (seed * 2654435761)
+    )
     h = h & 0xFFFFFFFF
     h = (h ^ (h >> 16)) * 0x45D9F3B & 0xFFFFFFFF
     h = (h ^ (h >> 16)) * 0x45D9F3B & 0xFFFFFFFF
@@ -160,7 +168,9 @@ def facade(wall, window, floor_height: float = 3.2, window_width: float = 2.0, s
         fu = np.mod(horiz / window_width, 1.0)
         fv = np.mod(p[:, 2] / floor_height, 1.0)
         is_win = (fu > 0.2) & (fu < 0.8) & (fv > 0.3) & (fv < 0.8) & (np.abs(n[:, 2]) < 0.5)
-        lit = cell_random(np.stack([horiz, p[:, 2], np.zeros(len(p))], 1), np.array([window_width, floor_height, 1]), seed)
+        lit = cell_random(
+            np.stack([horiz, p[:, 2], np.zeros(len(p))], 1), np.array([window_width, floor_height, 1]), seed
+        )
         win = window * (0.6 + 0.8 * lit)[:, None]
         return np.where(is_win[:, None], np.clip(win, 0, 1), wall * (0.9 + 0.2 * fbm(p * 2, 3, seed))[:, None])
 
@@ -226,21 +236,32 @@ def torus(center, radius: float, tube: float) -> o3d.geometry.TriangleMesh:
 def quad(corner, edge_u, edge_v) -> o3d.geometry.TriangleMesh:
     """A planar rectangle spanned by two edges from ``corner`` (both sides are hit by rays)."""
     c, u, v = (np.asarray(a, float) for a in (corner, edge_u, edge_v))
-    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.stack([c, c + u, c + u + v, c + v])),
-                                  o3d.utility.Vector3iVector(np.array([[0, 1, 2], [0, 2, 3]])))
+    m = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.stack([c, c + u, c + u + v, c + v])),
+        o3d.utility.Vector3iVector(np.array([[0, 1, 2], [0, 2, 3]])),
+    )
     return m
 
 
-def heightfield(height_fn: Callable[[np.ndarray, np.ndarray], np.ndarray], r_min: float, r_max: float,
-                n_rings: int = 160, n_azimuth: int = 360) -> o3d.geometry.TriangleMesh:
+def heightfield(
+    height_fn: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    r_min: float,
+    r_max: float,
+    n_rings: int = 160,
+    n_azimuth: int = 360,
+) -> o3d.geometry.TriangleMesh:
     """Terrain z = height_fn(x, y) on a polar grid with log-spaced rings from the centre to ``r_max``:
     fine near the viewer, coarse far away, so a few hundred thousand triangles reach the horizon."""
     radii = np.concatenate([[0.0], np.geomspace(r_min, r_max, n_rings)])
     az = np.linspace(0, 2 * np.pi, n_azimuth, endpoint=False)
     rr, aa = np.meshgrid(radii[1:], az, indexing="ij")
     x, y = rr * np.cos(aa), rr * np.sin(aa)
-    verts = np.concatenate([[[0.0, 0.0, float(height_fn(np.zeros(1), np.zeros(1))[0])]],
-                            np.stack([x, y, height_fn(x.ravel(), y.ravel()).reshape(x.shape)], -1).reshape(-1, 3)])
+    verts = np.concatenate(
+        [
+            [[0.0, 0.0, float(height_fn(np.zeros(1), np.zeros(1))[0])]],
+            np.stack([x, y, height_fn(x.ravel(), y.ravel()).reshape(x.shape)], -1).reshape(-1, 3),
+        ]
+    )
     tris = []
     ring = lambda k, j: 1 + k * n_azimuth + (j % n_azimuth)  # noqa: E731
     j = np.arange(n_azimuth)
@@ -248,4 +269,6 @@ def heightfield(height_fn: Callable[[np.ndarray, np.ndarray], np.ndarray], r_min
     for k in range(n_rings - 1):
         a, b, c, d = ring(k, j), ring(k, j + 1), ring(k + 1, j), ring(k + 1, j + 1)
         tris += [np.stack([a, c, d], 1), np.stack([a, d, b], 1)]
-    return o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(np.concatenate(tris)))
+    return o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(np.concatenate(tris))
+    )

@@ -1,5 +1,6 @@
 """Real panoramas from ``shared/data/real`` (and any ERP image by path) as ``Scene``s, with a depth file
 attached either as a model's prediction (the built-in HoHoNet scene) or as true depth (``--depth``)."""
+
 from __future__ import annotations
 
 import os
@@ -42,14 +43,28 @@ def _resize(img: np.ndarray, width: int | None, interpolation=cv2.INTER_AREA) ->
     return cv2.resize(img, (width, width // 2), interpolation=interpolation)
 
 
-def scene_from_image(path: Path, width: int | None = None, *, name: str | None = None,
-                     description: str = "", depth: DepthSpec | None = None, meta: dict | None = None) -> Scene:
+def scene_from_image(
+    path: Path,
+    width: int | None = None,
+    *,
+    name: str | None = None,
+    description: str = "",
+    depth: DepthSpec | None = None,
+    meta: dict | None = None,
+) -> Scene:
     """A real scene from an ERP image file and, optionally, its depth file (same pixel size as the image;
     resized to ``width`` with nearest neighbour). The depth is "truth" or "predicted" as ``depth.truth`` says."""
     full = read_image(path, erp=True)
-    scene = Scene(name=name or Path(path).stem, kind="real", description=description or f"equirectangular image {path}",
-                  rgb=_resize(full, width), distance=None, sky=np.zeros((1, 1), bool), distance_kind="none",
-                  meta={"image": str(path), "image_hw": list(full.shape[:2]), **(meta or {})})
+    scene = Scene(
+        name=name or Path(path).stem,
+        kind="real",
+        description=description or f"equirectangular image {path}",
+        rgb=_resize(full, width),
+        distance=None,
+        sky=np.zeros((1, 1), bool),
+        distance_kind="none",
+        meta={"image": str(path), "image_hw": list(full.shape[:2]), **(meta or {})},
+    )
     scene.sky = np.zeros(scene.rgb.shape[:2], bool)
     return with_depth(scene, depth) if depth is not None else scene
 
@@ -58,35 +73,62 @@ def with_depth(scene: Scene, depth: DepthSpec) -> Scene:
     """``scene`` with ``depth`` as its distance (resized like its image). A depth file of another pixel size than
     the image file (``meta["image_hw"]``), or one without a valid pixel, is refused."""
     if scene.kind == "synthetic":
-        raise PanoreconInputError(f"--depth {depth.path}: scene {scene.name!r} is synthetic and already has its "
-                                  "true depth; --depth is for real panoramas")
+        raise PanoreconInputError(
+            f"--depth {depth.path}: scene {scene.name!r} is synthetic and already has its "
+            "true depth; --depth is for real panoramas"
+        )
     d = read_erp_depth(depth.path, depth.scale, depth.kind)
     hw = tuple(scene.meta.get("image_hw", scene.rgb.shape[:2]))
     if d.shape != hw:
-        raise PanoreconInputError(f"{depth.path}: depth is {d.shape[1]}x{d.shape[0]} but the panorama "
-                                  f"{scene.meta.get('image', scene.name)} is {hw[1]}x{hw[0]}; expected the same size")
+        raise PanoreconInputError(
+            f"{depth.path}: depth is {d.shape[1]}x{d.shape[0]} but the panorama "
+            f"{scene.meta.get('image', scene.name)} is {hw[1]}x{hw[0]}; expected the same size"
+        )
     scene.distance = _resize(d, scene.width, cv2.INTER_NEAREST)
     scene.distance_kind = "truth" if depth.truth else "predicted"
-    scene.meta.update(depth=str(depth.path), depth_kind=depth.kind, depth_scale=depth.scale,
-                      depth_from=depth.source or ("true depth" if depth.truth else "predicted"))
+    scene.meta.update(
+        depth=str(depth.path),
+        depth_kind=depth.kind,
+        depth_scale=depth.scale,
+        depth_from=depth.source or ("true depth" if depth.truth else "predicted"),
+    )
     return scene
 
 
 def _hohonet(width):
     d = real_data_dir()
     return scene_from_image(
-        d / "hohonet_pano.png", width, name="hohonet",
+        d / "hohonet_pano.png",
+        width,
+        name="hohonet",
         description="real indoor panorama (HoHoNet demo), with HoHoNet's predicted depth (not ground truth)",
-        depth=DepthSpec(d / "hohonet_pano.pred_depth_mm.png", 1e-3, truth=False,
-                        source="HoHoNet prediction, millimetres, distance along the ray"),
+        depth=DepthSpec(
+            d / "hohonet_pano.pred_depth_mm.png",
+            1e-3,
+            truth=False,
+            source="HoHoNet prediction, millimetres, distance along the ray",
+        ),
     )
 
 
 def _py360(width):
-    return scene_from_image(real_data_dir() / "py360convert_demo_equirec.png", width, name="py360-demo",
-                            description="real indoor panorama (py360convert demo), no depth")
+    return scene_from_image(
+        real_data_dir() / "py360convert_demo_equirec.png",
+        width,
+        name="py360-demo",
+        description="real indoor panorama (py360convert demo), no depth",
+    )
 
 
-register_scene(SceneSpec("hohonet", "real", False,
-                         "real indoor panorama with HoHoNet's predicted depth (a model output, not truth)", _hohonet))
-register_scene(SceneSpec("py360-demo", "real", False, "real indoor panorama from py360convert's demo, no depth", _py360))
+register_scene(
+    SceneSpec(
+        "hohonet",
+        "real",
+        False,
+        "real indoor panorama with HoHoNet's predicted depth (a model output, not truth)",
+        _hohonet,
+    )
+)
+register_scene(
+    SceneSpec("py360-demo", "real", False, "real indoor panorama from py360convert's demo, no depth", _py360)
+)

@@ -1,11 +1,12 @@
 """Scene registry: every scene by name, synthetic and real, plus any ERP image given by path and any folder
 written by ``panorecon render`` (``rendered:<dir>`` or the folder's path). Only a synthetic scene's build
 imports Open3D."""
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from ..io import PanoreconInputError
 from .base import Scene
@@ -47,8 +48,9 @@ def _ensure_builtin() -> None:
 
     for name, description in SYNTHETIC_SCENES.items():
         if name not in _SCENES:
-            register_scene(SceneSpec(name, "synthetic", True, description,
-                                     lambda width, _n=name: _build_synthetic(_n, width)))
+            register_scene(
+                SceneSpec(name, "synthetic", True, description, lambda width, _n=name: _build_synthetic(_n, width))
+            )
 
 
 def list_scenes() -> list[SceneSpec]:
@@ -77,12 +79,16 @@ def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
         from .rendered import load_rendered
 
         if depth is not None:
-            raise PanoreconInputError(f"--depth {depth.path}: {name!r} is a `panorecon render` folder with its own depth")
+            raise PanoreconInputError(
+                f"--depth {depth.path}: {name!r} is a `panorecon render` folder with its own depth"
+            )
         return load_rendered(Path(name.removeprefix("rendered:")), width)
     if Path(name).suffix.lower() in (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".exr"):
         if Path(name).suffix.lower() == ".exr":
-            raise PanoreconInputError(f"{name}: an .exr is read as a depth file (--depth), not as the panorama; "
-                                      "expected the colour image (.png, .jpg, ...)")
+            raise PanoreconInputError(
+                f"{name}: an .exr is read as a depth file (--depth), not as the panorama; "
+                "expected the colour image (.png, .jpg, ...)"
+            )
         return scene_from_image(Path(name), width, depth=depth)
     raise PanoreconInputError(
         f"unknown scene {name!r}: expected one of {', '.join(sorted(_SCENES))}, a dataset panorama "
@@ -97,8 +103,9 @@ def scene_from_args(args) -> Scene:
     if getattr(args, "depth", None):
         from .real import DepthSpec
 
-        depth = DepthSpec(Path(args.depth), getattr(args, "depth_scale", None),
-                          getattr(args, "depth_kind", None) or "distance")
+        depth = DepthSpec(
+            Path(args.depth), getattr(args, "depth_scale", None), getattr(args, "depth_kind", None) or "distance"
+        )
     elif getattr(args, "depth_scale", None) is not None or getattr(args, "depth_kind", None) is not None:
         raise PanoreconInputError("--depth-scale/--depth-kind without --depth: expected a depth file to read")
     return load_scene(args.scene, getattr(args, "width", None), depth)

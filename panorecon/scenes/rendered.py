@@ -8,6 +8,7 @@ scene's ``RecordedWorld`` replays them, so a machine without Open3D trains and e
 synthetic scene; a camera that was not recorded is refused with the command that records it (simulated
 teachers then read the truth from distance.npy, see ``teachers.base.true_view_distance``).
 """
+
 from __future__ import annotations
 
 import json
@@ -44,8 +45,9 @@ class RecordedWorld:
         rec = self._recorded(camera.width) if camera.width == camera.height else None
         if rec is None:
             return None
-        same = (np.abs(rec["viewmats"] - camera.viewmat).max((1, 2)) < 1e-9) & \
-               (np.abs(rec["Ks"] - camera.K).max((1, 2)) < 1e-9)
+        same = (np.abs(rec["viewmats"] - camera.viewmat).max((1, 2)) < 1e-9) & (
+            np.abs(rec["Ks"] - camera.K).max((1, 2)) < 1e-9
+        )
         hit = np.flatnonzero(same)
         return (rec, int(hit[0])) if len(hit) else None
 
@@ -63,7 +65,8 @@ class RecordedWorld:
             f"{self.folder}: no recorded true view for a {camera.width}x{camera.height} camera at "
             f"{np.round(camera.position, 3).tolist()}; write the folder again with "
             f"`panorecon render <scene> --out {self.folder} --heldout-res {camera.width}` (and the same --heldout, "
-            "fov and seed as the training)")
+            "fov and seed as the training)"
+        )
 
     def render_erp(self, height: int, position: np.ndarray | None = None) -> ErpRender:
         raise PanoreconInputError(f"{self.folder}: a rendered folder holds no world to render new panoramas from")
@@ -112,24 +115,38 @@ def load_rendered(folder: Path, width: int | None = None) -> Scene:
         info = json.loads(info_path.read_text())
         name, kind, distance_kind = info["name"], info["kind"], info["distance_kind"]
     except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise PanoreconInputError(f"{info_path}: unreadable ({type(e).__name__}: {e}); write the folder "
-                                  "again") from None
+        raise PanoreconInputError(
+            f"{info_path}: unreadable ({type(e).__name__}: {e}); write the folder again"
+        ) from None
     rgb = read_image(folder / "pano.png", erp=True)
     if width is not None and width != rgb.shape[1]:
-        raise PanoreconInputError(f"--width {width}: {folder} was rendered at width {rgb.shape[1]}; render it again "
-                                  "at that width or leave --width out")
+        raise PanoreconInputError(
+            f"--width {width}: {folder} was rendered at width {rgb.shape[1]}; render it again "
+            "at that width or leave --width out"
+        )
     distance = None
     dpath = folder / "distance.npy"
     if dpath.is_file():
         distance = np.load(dpath)
         if distance.shape != rgb.shape[:2] or distance.dtype != np.float32:
-            raise PanoreconInputError(f"{dpath}: expected float32 {rgb.shape[:2]} ray distance, got "
-                                      f"{distance.dtype} {distance.shape}")
+            raise PanoreconInputError(
+                f"{dpath}: expected float32 {rgb.shape[:2]} ray distance, got {distance.dtype} {distance.shape}"
+            )
     elif distance_kind != "none":
-        raise PanoreconInputError(f"{folder}: scene.json says distance_kind={distance_kind!r} but distance.npy is "
-                                  "missing")
+        raise PanoreconInputError(
+            f"{folder}: scene.json says distance_kind={distance_kind!r} but distance.npy is missing"
+        )
     sky = np.isposinf(distance) if distance is not None else np.zeros(rgb.shape[:2], bool)
     radius = info.get("free_space_radius")
     world = RecordedWorld(folder, float(radius)) if radius is not None else None
-    return Scene(name=name, kind=kind, description=info.get("description", ""), rgb=rgb, distance=distance, sky=sky,
-                 distance_kind=distance_kind, world=world, meta={**info.get("meta", {}), "rendered_from": str(folder)})
+    return Scene(
+        name=name,
+        kind=kind,
+        description=info.get("description", ""),
+        rgb=rgb,
+        distance=distance,
+        sky=sky,
+        distance_kind=distance_kind,
+        world=world,
+        meta={**info.get("meta", {}), "rendered_from": str(folder)},
+    )

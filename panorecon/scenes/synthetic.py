@@ -6,6 +6,7 @@ Rendering is ray casting (Open3D ``RaycastingScene``): ERP panoramas and perspec
 position, with the exact ray distance of each pixel-centre ray. Sky is at infinite distance.
 The panorama centre is the world origin, 1.6 m above the floor / ground.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -78,7 +79,9 @@ class SyntheticWorld:
                 lambert = np.clip(normals[sel] @ LIGHT, 0, None)
                 # indoor: a soft second light from below-ish so floors and undersides are not flat
                 fill = 0.25 * np.clip(normals[sel] @ np.array([-0.3, 0.5, -0.2]) / 0.62, 0, None)
-                rgb[sel] = albedo * (self.ambient + (1 - self.ambient) * lambert + (0 if self.outdoor else fill))[:, None]
+                rgb[sel] = (
+                    albedo * (self.ambient + (1 - self.ambient) * lambert + (0 if self.outdoor else fill))[:, None]
+                )
         dist = np.where(sky, np.inf, t).astype(np.float32)
         return np.clip(rgb, 0, 1).reshape(shape + (3,)), dist.reshape(shape), sky.reshape(shape)
 
@@ -127,9 +130,10 @@ def _room(size, floor_tex, wall_tex, ceiling_tex, wall_texes=None) -> list[Part]
         P.quad((-x0, y0, z0), (0, ly, 0), (0, 0, lz)),  # x = -x0
     ]
     wall_texes = wall_texes or [wall_tex] * 4
-    return ([Part(P.quad((x0, y0, z0), (lx, 0, 0), (0, ly, 0)), floor_tex),
-             Part(P.quad((x0, y0, z0 + lz), (lx, 0, 0), (0, ly, 0)), ceiling_tex)]
-            + [Part(w, t) for w, t in zip(walls, wall_texes)])
+    return [
+        Part(P.quad((x0, y0, z0), (lx, 0, 0), (0, ly, 0)), floor_tex),
+        Part(P.quad((x0, y0, z0 + lz), (lx, 0, 0), (0, ly, 0)), ceiling_tex),
+    ] + [Part(w, t) for w, t in zip(walls, wall_texes)]
 
 
 def _floor(z: float) -> float:
@@ -139,27 +143,68 @@ def _floor(z: float) -> float:
 # ---------------------------------------------------------------- scenes
 def bedroom(seed: int) -> SyntheticWorld:
     W, D, H = 4.6, 5.2, 2.7
-    parts = _room((W, D, H), P.wood([0.55, 0.36, 0.2], seed=seed, axis=0),
-                  P.stripes([0.86, 0.8, 0.7], [0.76, 0.68, 0.58], 0.35, seed=seed), P.noisy([0.93, 0.93, 0.9], 0.12, 2, seed))
+    parts = _room(
+        (W, D, H),
+        P.wood([0.55, 0.36, 0.2], seed=seed, axis=0),
+        P.stripes([0.86, 0.8, 0.7], [0.76, 0.68, 0.58], 0.35, seed=seed),
+        P.noisy([0.93, 0.93, 0.9], 0.12, 2, seed),
+    )
     bed_c = (-W / 2 + 1.15, 0.6)
     parts += [
         Part(P.box((bed_c[0], bed_c[1], _floor(0.2)), (2.1, 1.7, 0.4)), P.wood([0.4, 0.25, 0.15], seed=seed + 1)),
-        Part(P.box((bed_c[0], bed_c[1], _floor(0.5)), (2.0, 1.6, 0.22)), P.checker([0.85, 0.85, 0.9], [0.55, 0.62, 0.8], 0.2, seed)),
-        Part(P.box((-W / 2 + 0.2, bed_c[1] - 0.4, _floor(0.72)), (0.3, 0.55, 0.18)), P.noisy([0.95, 0.95, 0.95], 0.08, 6, seed)),
-        Part(P.box((-W / 2 + 0.2, bed_c[1] + 0.4, _floor(0.72)), (0.3, 0.55, 0.18)), P.noisy([0.95, 0.9, 0.85], 0.08, 6, seed)),
-        Part(P.box((-W / 2 + 0.06, bed_c[1], _floor(0.75)), (0.1, 1.8, 1.5)), P.wood([0.35, 0.2, 0.12], seed=seed + 2, axis=2)),
+        Part(
+            P.box((bed_c[0], bed_c[1], _floor(0.5)), (2.0, 1.6, 0.22)),
+            P.checker([0.85, 0.85, 0.9], [0.55, 0.62, 0.8], 0.2, seed),
+        ),
+        Part(
+            P.box((-W / 2 + 0.2, bed_c[1] - 0.4, _floor(0.72)), (0.3, 0.55, 0.18)),
+            P.noisy([0.95, 0.95, 0.95], 0.08, 6, seed),
+        ),
+        Part(
+            P.box((-W / 2 + 0.2, bed_c[1] + 0.4, _floor(0.72)), (0.3, 0.55, 0.18)),
+            P.noisy([0.95, 0.9, 0.85], 0.08, 6, seed),
+        ),
+        Part(
+            P.box((-W / 2 + 0.06, bed_c[1], _floor(0.75)), (0.1, 1.8, 1.5)),
+            P.wood([0.35, 0.2, 0.12], seed=seed + 2, axis=2),
+        ),
         # nightstands and lamps
-        Part(P.box((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.3)), (0.5, 0.45, 0.6)), P.wood([0.5, 0.32, 0.18], seed=seed + 3)),
+        Part(
+            P.box((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.3)), (0.5, 0.45, 0.6)),
+            P.wood([0.5, 0.32, 0.18], seed=seed + 3),
+        ),
         Part(P.cylinder((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.6)), 0.05, 0.35), P.solid([0.2, 0.2, 0.2])),
-        Part(P.cylinder((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.95)), 0.18, 0.25), P.solid([1.0, 0.93, 0.75]), emissive=True),
+        Part(
+            P.cylinder((-W / 2 + 0.3, bed_c[1] - 1.2, _floor(0.95)), 0.18, 0.25),
+            P.solid([1.0, 0.93, 0.75]),
+            emissive=True,
+        ),
         # wardrobe, desk, chair, rug, window, pictures
-        Part(P.box((W / 2 - 0.35, -D / 2 + 1.0, _floor(1.05)), (0.65, 1.6, 2.1)), P.wood([0.62, 0.45, 0.3], seed=seed + 4, axis=2)),
-        Part(P.box((W / 2 - 0.4, D / 2 - 1.1, _floor(0.74)), (0.7, 1.3, 0.05)), P.wood([0.45, 0.3, 0.2], seed=seed + 5)),
+        Part(
+            P.box((W / 2 - 0.35, -D / 2 + 1.0, _floor(1.05)), (0.65, 1.6, 2.1)),
+            P.wood([0.62, 0.45, 0.3], seed=seed + 4, axis=2),
+        ),
+        Part(
+            P.box((W / 2 - 0.4, D / 2 - 1.1, _floor(0.74)), (0.7, 1.3, 0.05)), P.wood([0.45, 0.3, 0.2], seed=seed + 5)
+        ),
         Part(P.box((W / 2 - 0.4, D / 2 - 1.1, _floor(0.36)), (0.6, 0.1, 0.72)), P.solid([0.3, 0.22, 0.15])),
-        Part(P.box((W / 2 - 1.0, D / 2 - 1.1, _floor(0.23)), (0.45, 0.45, 0.46)), P.noisy([0.6, 0.15, 0.12], 0.1, 8, seed)),
-        Part(P.box((0.3, -0.6, _floor(0.01)), (1.6, 2.2, 0.02)), P.patches([[0.6, 0.2, 0.2], [0.8, 0.6, 0.3], [0.3, 0.3, 0.5], [0.9, 0.85, 0.7]], 0.25, seed)),
-        Part(P.box((0.4, D / 2 - 0.01, _floor(1.5)), (1.4, 0.03, 1.1)), P.noisy([0.55, 0.75, 0.95], 0.2, 2, seed), emissive=True),
-        Part(P.box((0.4, -D / 2 + 0.02, _floor(1.6)), (0.9, 0.03, 0.6)), P.patches([[0.2, 0.4, 0.2], [0.7, 0.5, 0.2], [0.3, 0.5, 0.7]], 0.15, seed + 6)),
+        Part(
+            P.box((W / 2 - 1.0, D / 2 - 1.1, _floor(0.23)), (0.45, 0.45, 0.46)),
+            P.noisy([0.6, 0.15, 0.12], 0.1, 8, seed),
+        ),
+        Part(
+            P.box((0.3, -0.6, _floor(0.01)), (1.6, 2.2, 0.02)),
+            P.patches([[0.6, 0.2, 0.2], [0.8, 0.6, 0.3], [0.3, 0.3, 0.5], [0.9, 0.85, 0.7]], 0.25, seed),
+        ),
+        Part(
+            P.box((0.4, D / 2 - 0.01, _floor(1.5)), (1.4, 0.03, 1.1)),
+            P.noisy([0.55, 0.75, 0.95], 0.2, 2, seed),
+            emissive=True,
+        ),
+        Part(
+            P.box((0.4, -D / 2 + 0.02, _floor(1.6)), (0.9, 0.03, 0.6)),
+            P.patches([[0.2, 0.4, 0.2], [0.7, 0.5, 0.2], [0.3, 0.5, 0.7]], 0.15, seed + 6),
+        ),
     ]
     return SyntheticWorld(parts, outdoor=False, seed=seed)
 
@@ -167,27 +212,49 @@ def bedroom(seed: int) -> SyntheticWorld:
 def bathroom(seed: int) -> SyntheticWorld:
     W, D, H = 3.4, 4.0, 2.6
     wall_tiles = P.tiles([0.82, 0.86, 0.88], [0.6, 0.6, 0.6], 0.2, seed=seed)
-    parts = _room((W, D, H), P.checker([0.15, 0.15, 0.17], [0.85, 0.85, 0.82], 0.3, seed), wall_tiles, P.noisy([0.96, 0.96, 0.96], 0.04, 3, seed))
+    parts = _room(
+        (W, D, H),
+        P.checker([0.15, 0.15, 0.17], [0.85, 0.85, 0.82], 0.3, seed),
+        wall_tiles,
+        P.noisy([0.96, 0.96, 0.96], 0.04, 3, seed),
+    )
     marble = P.noisy([0.92, 0.9, 0.86], 0.25, 3, seed + 1)
     parts += [
         # bathtub along the -x wall: outer shell and water surface
         Part(P.box((-W / 2 + 0.4, 0.4, _floor(0.28)), (0.75, 1.7, 0.56)), marble),
-        Part(P.box((-W / 2 + 0.4, 0.4, _floor(0.5)), (0.6, 1.5, 0.1)), P.noisy([0.6, 0.8, 0.9], 0.15, 5, seed), emissive=False),
+        Part(
+            P.box((-W / 2 + 0.4, 0.4, _floor(0.5)), (0.6, 1.5, 0.1)),
+            P.noisy([0.6, 0.8, 0.9], 0.15, 5, seed),
+            emissive=False,
+        ),
         # vanity with basin, mirror, tap
         Part(P.box((W / 2 - 0.3, -0.6, _floor(0.42)), (0.55, 1.2, 0.84)), P.wood([0.3, 0.2, 0.14], seed=seed + 2)),
         Part(P.box((W / 2 - 0.3, -0.6, _floor(0.87)), (0.6, 1.3, 0.06)), P.noisy([0.15, 0.15, 0.15], 0.3, 4, seed + 3)),
         Part(P.cylinder((W / 2 - 0.3, -0.6, _floor(0.9)), 0.2, 0.08), P.solid([0.97, 0.97, 0.97])),
-        Part(P.box((W / 2 - 0.02, -0.6, _floor(1.55)), (0.03, 1.1, 0.85)), P.noisy([0.7, 0.75, 0.78], 0.1, 1, seed), emissive=True),
+        Part(
+            P.box((W / 2 - 0.02, -0.6, _floor(1.55)), (0.03, 1.1, 0.85)),
+            P.noisy([0.7, 0.75, 0.78], 0.1, 1, seed),
+            emissive=True,
+        ),
         Part(P.cylinder((W / 2 - 0.1, -0.6, _floor(0.9)), 0.02, 0.25), P.solid([0.75, 0.7, 0.5])),
         # toilet
         Part(P.cylinder((0.8, -D / 2 + 0.45, _floor(0)), 0.22, 0.42), P.solid([0.97, 0.97, 0.96])),
         Part(P.box((0.8, -D / 2 + 0.12, _floor(0.6)), (0.45, 0.2, 0.4)), P.solid([0.95, 0.95, 0.95])),
         # towel rail, towels, plant pot, bath mat
-        Part(P.box((-0.4, D / 2 - 0.06, _floor(1.0)), (0.7, 0.06, 0.6)), P.stripes([0.85, 0.5, 0.3], [0.95, 0.9, 0.8], 0.1, axis=2, seed=seed)),
+        Part(
+            P.box((-0.4, D / 2 - 0.06, _floor(1.0)), (0.7, 0.06, 0.6)),
+            P.stripes([0.85, 0.5, 0.3], [0.95, 0.9, 0.8], 0.1, axis=2, seed=seed),
+        ),
         Part(P.cylinder((-0.9, -D / 2 + 0.35, _floor(0)), 0.16, 0.35), P.noisy([0.6, 0.35, 0.25], 0.1, 6, seed)),
         Part(P.sphere((-0.9, -D / 2 + 0.35, _floor(0.6)), 0.28), P.noisy([0.2, 0.5, 0.2], 0.35, 12, seed + 4)),
-        Part(P.box((-0.5, 0.4, _floor(0.01)), (0.6, 0.9, 0.02)), P.checker([0.3, 0.5, 0.6], [0.85, 0.85, 0.8], 0.1, seed)),
-        Part(P.box((0.0, D / 2 - 0.02, _floor(2.05)), (0.6, 0.03, 0.4)), P.noisy([0.6, 0.8, 1.0], 0.1, 2, seed), emissive=True),
+        Part(
+            P.box((-0.5, 0.4, _floor(0.01)), (0.6, 0.9, 0.02)), P.checker([0.3, 0.5, 0.6], [0.85, 0.85, 0.8], 0.1, seed)
+        ),
+        Part(
+            P.box((0.0, D / 2 - 0.02, _floor(2.05)), (0.6, 0.03, 0.4)),
+            P.noisy([0.6, 0.8, 1.0], 0.1, 2, seed),
+            emissive=True,
+        ),
     ]
     return SyntheticWorld(parts, outdoor=False, seed=seed)
 
@@ -195,10 +262,25 @@ def bathroom(seed: int) -> SyntheticWorld:
 def library(seed: int) -> SyntheticWorld:
     rng = np.random.default_rng(seed)
     W, D, H = 9.0, 11.0, 4.2
-    parts = _room((W, D, H), P.wood([0.45, 0.28, 0.16], seed=seed, axis=1), P.noisy([0.85, 0.8, 0.68], 0.08, 2, seed),
-                  P.tiles([0.8, 0.78, 0.7], [0.5, 0.45, 0.4], 1.0, 0.05, seed))
-    spines = P.patches([[0.55, 0.1, 0.1], [0.1, 0.25, 0.45], [0.15, 0.4, 0.2], [0.75, 0.6, 0.3], [0.3, 0.15, 0.3],
-                        [0.85, 0.8, 0.7], [0.2, 0.2, 0.2]], np.array([0.05, 0.05, 0.34]), seed)
+    parts = _room(
+        (W, D, H),
+        P.wood([0.45, 0.28, 0.16], seed=seed, axis=1),
+        P.noisy([0.85, 0.8, 0.68], 0.08, 2, seed),
+        P.tiles([0.8, 0.78, 0.7], [0.5, 0.45, 0.4], 1.0, 0.05, seed),
+    )
+    spines = P.patches(
+        [
+            [0.55, 0.1, 0.1],
+            [0.1, 0.25, 0.45],
+            [0.15, 0.4, 0.2],
+            [0.75, 0.6, 0.3],
+            [0.3, 0.15, 0.3],
+            [0.85, 0.8, 0.7],
+            [0.2, 0.2, 0.2],
+        ],
+        np.array([0.05, 0.05, 0.34]),
+        seed,
+    )
     shelf_wood = P.wood([0.35, 0.2, 0.1], seed=seed + 1)
     # shelving along the long walls and free-standing stacks
     for side in (-1, 1):
@@ -214,21 +296,43 @@ def library(seed: int) -> SyntheticWorld:
     for y in (-1.0, 1.2):
         parts.append(Part(P.box((0.0, y, _floor(0.76)), (2.0, 0.9, 0.06)), P.wood([0.4, 0.22, 0.12], seed=seed + 2)))
         parts.append(Part(P.box((0.0, y, _floor(0.37)), (1.8, 0.1, 0.74)), shelf_wood))
-        parts.append(Part(P.cylinder((0.5 * rng.choice([-1, 1]), y, _floor(0.79)), 0.12, 0.3), P.solid([0.1, 0.45, 0.2])))
+        parts.append(
+            Part(P.cylinder((0.5 * rng.choice([-1, 1]), y, _floor(0.79)), 0.12, 0.3), P.solid([0.1, 0.45, 0.2]))
+        )
         for x in (-0.6, 0.6):
-            parts.append(Part(P.box((x, y + 0.75, _floor(0.23)), (0.42, 0.42, 0.46)), P.noisy([0.5, 0.12, 0.1], 0.1, 8, seed)))
-    parts.append(Part(P.box((0, -D / 2 + 0.02, _floor(2.8)), (3.0, 0.03, 1.6)), P.noisy([0.6, 0.75, 0.95], 0.2, 2, seed), emissive=True))
+            parts.append(
+                Part(P.box((x, y + 0.75, _floor(0.23)), (0.42, 0.42, 0.46)), P.noisy([0.5, 0.12, 0.1], 0.1, 8, seed))
+            )
+    parts.append(
+        Part(
+            P.box((0, -D / 2 + 0.02, _floor(2.8)), (3.0, 0.03, 1.6)),
+            P.noisy([0.6, 0.75, 0.95], 0.2, 2, seed),
+            emissive=True,
+        )
+    )
     return SyntheticWorld(parts, outdoor=False, seed=seed)
 
 
 def exhibition_hall(seed: int) -> SyntheticWorld:
     rng = np.random.default_rng(seed)
     W, D, H = 14.0, 18.0, 5.0
-    parts = _room((W, D, H), P.tiles([0.75, 0.74, 0.72], [0.45, 0.45, 0.45], 1.2, 0.03, seed),
-                  P.noisy([0.95, 0.95, 0.93], 0.04, 1, seed), P.noisy([0.9, 0.9, 0.92], 0.05, 1, seed))
+    parts = _room(
+        (W, D, H),
+        P.tiles([0.75, 0.74, 0.72], [0.45, 0.45, 0.45], 1.2, 0.03, seed),
+        P.noisy([0.95, 0.95, 0.93], 0.04, 1, seed),
+        P.noisy([0.9, 0.9, 0.92], 0.05, 1, seed),
+    )
     # large posters on the walls
-    for i, (x, y, normal_x) in enumerate([(-W / 2 + 0.03, -5, True), (-W / 2 + 0.03, 3, True), (W / 2 - 0.03, -2, True),
-                                          (W / 2 - 0.03, 5, True), (-3, D / 2 - 0.03, False), (3, -D / 2 + 0.03, False)]):
+    for i, (x, y, normal_x) in enumerate(
+        [
+            (-W / 2 + 0.03, -5, True),
+            (-W / 2 + 0.03, 3, True),
+            (W / 2 - 0.03, -2, True),
+            (W / 2 - 0.03, 5, True),
+            (-3, D / 2 - 0.03, False),
+            (3, -D / 2 + 0.03, False),
+        ]
+    ):
         size = (0.04, 2.6, 3.2) if normal_x else (2.6, 0.04, 3.2)
         pal = rng.uniform(0.1, 0.95, size=(5, 3))
         parts.append(Part(P.box((x, y, _floor(2.4)), size), P.patches(pal, 0.45, seed + 10 + i, 0.05)))
@@ -238,14 +342,20 @@ def exhibition_hall(seed: int) -> SyntheticWorld:
         parts.append(Part(P.box((x, y, _floor(1.3)), (1.3, 0.7, 0.8)), P.noisy([0.7, 0.85, 0.88], 0.12, 3, seed + i)))
     for i, (x, y) in enumerate([(0.0, -5.0), (-5.0, 0.5), (5.0, 0.0), (0.5, 6.0)]):
         parts.append(Part(P.cylinder((x, y, _floor(0)), 0.45, 1.0), P.noisy([0.9, 0.9, 0.88], 0.06, 4, seed)))
-        shape = [P.sphere((x, y, _floor(1.55)), 0.5), P.torus((x, y, _floor(1.7)), 0.5, 0.15),
-                 P.box((x, y, _floor(1.6)), (0.6, 0.6, 1.2), yaw=0.6), P.sphere((x, y, _floor(1.4)), 0.35)][i]
+        shape = [
+            P.sphere((x, y, _floor(1.55)), 0.5),
+            P.torus((x, y, _floor(1.7)), 0.5, 0.15),
+            P.box((x, y, _floor(1.6)), (0.6, 0.6, 1.2), yaw=0.6),
+            P.sphere((x, y, _floor(1.4)), 0.35),
+        ][i]
         parts.append(Part(shape, P.noisy(rng.uniform(0.2, 0.9, 3), 0.35, 6, seed + 20 + i)))
     # spotlights on a ceiling track
     for x in np.linspace(-5, 5, 6):
         parts.append(Part(P.box((x, 0, _floor(H - 0.1)), (0.12, 12.0, 0.08)), P.solid([0.15, 0.15, 0.15])))
         for y in (-4.0, 0.0, 4.0):
-            parts.append(Part(P.cylinder((x, y, _floor(H - 0.45)), 0.12, 0.3), P.solid([1.0, 0.97, 0.85]), emissive=True))
+            parts.append(
+                Part(P.cylinder((x, y, _floor(H - 0.45)), 0.12, 0.3), P.solid([1.0, 0.97, 0.85]), emissive=True)
+            )
     return SyntheticWorld(parts, outdoor=False, seed=seed)
 
 
@@ -255,13 +365,27 @@ def mountain(seed: int) -> SyntheticWorld:
         p = np.stack([x / 900.0, y / 900.0, np.full_like(x, seed * 0.37)], 1)
         ridge = 1 - np.abs(2 * P.fbm(p, 6, seed) - 1)  # ridged noise: sharp crests
         amp = 1500 * np.clip((r - 80) / 1400, 0, 1) ** 1.1
-        local = 3 * (P.fbm(np.stack([x / 40, y / 40, np.zeros_like(x)], 1), 3, seed + 1) - 0.5) * np.clip((r - 8) / 30, 0, 1)
-        return -EYE_HEIGHT + amp * ridge ** 1.5 + local
+        local = (
+            3
+            * (P.fbm(np.stack([x / 40, y / 40, np.zeros_like(x)], 1), 3, seed + 1) - 0.5)
+            * np.clip((r - 8) / 30, 0, 1)
+        )
+        return -EYE_HEIGHT + amp * ridge**1.5 + local
 
     terrain = P.heightfield(h, 1.0, 6000.0, 180, 400)
     terrain.compute_triangle_normals()
-    tex = P.by_height([(-10, (0.35, 0.45, 0.2)), (150, (0.3, 0.4, 0.2)), (350, (0.45, 0.4, 0.33)), (600, (0.55, 0.52, 0.5)),
-                       (800, (0.95, 0.95, 0.97)), (2000, (1.0, 1.0, 1.0))], slope_color=(0.42, 0.38, 0.34), seed=seed)
+    tex = P.by_height(
+        [
+            (-10, (0.35, 0.45, 0.2)),
+            (150, (0.3, 0.4, 0.2)),
+            (350, (0.45, 0.4, 0.33)),
+            (600, (0.55, 0.52, 0.5)),
+            (800, (0.95, 0.95, 0.97)),
+            (2000, (1.0, 1.0, 1.0)),
+        ],
+        slope_color=(0.42, 0.38, 0.34),
+        seed=seed,
+    )
     return SyntheticWorld([Part(terrain, tex)], outdoor=True, seed=seed, ambient=0.5)
 
 
@@ -274,18 +398,30 @@ def grassland(seed: int) -> SyntheticWorld:
         return -EYE_HEIGHT + 40 * P.fbm(p, 5, seed) * np.clip((r - 10) / 400, 0, 1) - 0.0
 
     terrain = P.heightfield(h, 0.5, 4000.0, 160, 360)
-    grass = P.by_height([(-5, (0.35, 0.55, 0.15)), (15, (0.45, 0.6, 0.2)), (40, (0.55, 0.6, 0.3))], seed=seed, jitter=0.6)
+    grass = P.by_height(
+        [(-5, (0.35, 0.55, 0.15)), (15, (0.45, 0.6, 0.2)), (40, (0.55, 0.6, 0.3))], seed=seed, jitter=0.6
+    )
     parts = [Part(terrain, grass)]
     # yurts and a fence line scattered on the steppe
-    for k in range(5):
+    for _ in range(5):
         a, r = rng.uniform(0, 2 * np.pi), rng.uniform(15, 60)
         x, y = r * np.cos(a), r * np.sin(a)
         z = float(h(np.array([x]), np.array([y]))[0])
-        parts.append(Part(P.cylinder((x, y, z - 0.3), 2.5, 2.3), P.stripes([0.95, 0.95, 0.92], [0.7, 0.3, 0.25], 1.0, axis=2, seed=seed)))
+        parts.append(
+            Part(
+                P.cylinder((x, y, z - 0.3), 2.5, 2.3),
+                P.stripes([0.95, 0.95, 0.92], [0.7, 0.3, 0.25], 1.0, axis=2, seed=seed),
+            )
+        )
         parts.append(Part(P.sphere((x, y, z + 2.0), 2.5), P.noisy([0.9, 0.88, 0.82], 0.1, 2, seed)))
     for k in range(24):
         x = -20 + 2.5 * k
-        parts.append(Part(P.box((x, 12.0, float(h(np.array([x]), np.array([12.0]))[0]) + 0.5), (0.12, 0.12, 1.2)), P.wood([0.45, 0.3, 0.18], seed=seed)))
+        parts.append(
+            Part(
+                P.box((x, 12.0, float(h(np.array([x]), np.array([12.0]))[0]) + 0.5), (0.12, 0.12, 1.2)),
+                P.wood([0.45, 0.3, 0.18], seed=seed),
+            )
+        )
     return SyntheticWorld(parts, outdoor=True, seed=seed + 1, ambient=0.5)
 
 
@@ -298,8 +434,13 @@ def beach(seed: int) -> SyntheticWorld:
         return -EYE_HEIGHT - 0.1 * x + dune
 
     def water(x, y):
-        return (-EYE_HEIGHT - 0.35 + 0.15 * np.sin(0.9 * x + 0.2 * y) + 0.08 * np.sin(2.3 * x - 1.1 * y + 1.0)
-                + 0.4 * (P.fbm(np.stack([x / 12, y / 12, np.zeros_like(x)], 1), 3, seed + 3) - 0.5))
+        return (
+            -EYE_HEIGHT
+            - 0.35
+            + 0.15 * np.sin(0.9 * x + 0.2 * y)
+            + 0.08 * np.sin(2.3 * x - 1.1 * y + 1.0)
+            + 0.4 * (P.fbm(np.stack([x / 12, y / 12, np.zeros_like(x)], 1), 3, seed + 3) - 0.5)
+        )
 
     sea = P.heightfield(water, 0.5, 5000.0, 170, 360)
     # keep only the sea side so the water does not cover the beach
@@ -307,18 +448,39 @@ def beach(seed: int) -> SyntheticWorld:
     keep = v[:, 0] > -2.0
     sea.remove_vertices_by_mask(~keep)
     parts = [
-        Part(P.heightfield(sand, 0.5, 3000.0, 150, 360), lambda p, n: P.noisy([0.86, 0.76, 0.55], 0.12, 3, seed)(p, n) * (0.85 + 0.3 * P.fbm(p * 9, 2, seed + 5))[:, None]),
-        Part(sea, lambda p, n: np.clip(np.array([0.1, 0.35, 0.5]) + 0.35 * np.clip(n[:, :1] * 0 + (1 - n[:, 2:3]) * 6, 0, 1)
-                                       + 0.1 * P.fbm(p * 0.5, 3, seed)[:, None], 0, 1)),
+        Part(
+            P.heightfield(sand, 0.5, 3000.0, 150, 360),
+            lambda p, n: (
+                P.noisy([0.86, 0.76, 0.55], 0.12, 3, seed)(p, n) * (0.85 + 0.3 * P.fbm(p * 9, 2, seed + 5))[:, None]
+            ),
+        ),
+        Part(
+            sea,
+            lambda p, n: np.clip(
+                np.array([0.1, 0.35, 0.5])
+                + 0.35 * np.clip(n[:, :1] * 0 + (1 - n[:, 2:3]) * 6, 0, 1)
+                + 0.1 * P.fbm(p * 0.5, 3, seed)[:, None],
+                0,
+                1,
+            ),
+        ),
     ]
     for k in range(4):  # umbrellas and rocks
         x, y = rng.uniform(-14, -5), rng.uniform(-12, 12)
-        parts.append(Part(P.cylinder((x, y, sand(np.array([x]), np.array([y]))[0] - 0.2), 0.04, 2.2), P.solid([0.9, 0.9, 0.9])))
-        cone = o3d.geometry.TriangleMesh.create_cone(1.2, 0.5, 24).translate((x, y, sand(np.array([x]), np.array([y]))[0] + 1.9))
+        parts.append(
+            Part(P.cylinder((x, y, sand(np.array([x]), np.array([y]))[0] - 0.2), 0.04, 2.2), P.solid([0.9, 0.9, 0.9]))
+        )
+        cone = o3d.geometry.TriangleMesh.create_cone(1.2, 0.5, 24).translate(
+            (x, y, sand(np.array([x]), np.array([y]))[0] + 1.9)
+        )
         parts.append(Part(cone, P.stripes([0.9, 0.2, 0.2], [0.95, 0.95, 0.9], 0.5, axis=2, seed=seed + k)))
     for k in range(6):
         x, y = rng.uniform(6, 25), rng.uniform(-30, 30)
-        parts.append(Part(P.sphere((x, y, -EYE_HEIGHT - 0.5), rng.uniform(0.8, 2.0)), P.noisy([0.35, 0.33, 0.3], 0.3, 2, seed + k)))
+        parts.append(
+            Part(
+                P.sphere((x, y, -EYE_HEIGHT - 0.5), rng.uniform(0.8, 2.0)), P.noisy([0.35, 0.33, 0.3], 0.3, 2, seed + k)
+            )
+        )
     return SyntheticWorld(parts, outdoor=True, seed=seed, ambient=0.5)
 
 
@@ -347,8 +509,12 @@ def city_plaza(seed: int) -> SyntheticWorld:
         r = rng.uniform(45, 60)
         hgt = rng.uniform(12, 40)
         wall = rng.uniform(0.45, 0.85, 3)
-        parts.append(Part(P.box((r * np.cos(a), r * np.sin(a), -EYE_HEIGHT + hgt / 2), (14, 14, hgt), yaw=a),
-                          P.facade(wall, [0.3, 0.4, 0.5], seed=seed + k)))
+        parts.append(
+            Part(
+                P.box((r * np.cos(a), r * np.sin(a), -EYE_HEIGHT + hgt / 2), (14, 14, hgt), yaw=a),
+                P.facade(wall, [0.3, 0.4, 0.5], seed=seed + k),
+            )
+        )
     for k in range(6):  # trees
         a = 2 * np.pi * k / 6 + 0.3
         tx, ty = 22 * np.cos(a), 22 * np.sin(a)
@@ -385,6 +551,14 @@ def build_scene(name: str, width: int | None = None, seed: int = SCENE_SEED) -> 
     w = world(name, seed)
     width = DEFAULT_WIDTH if width is None else width
     erp = w.render_erp(width // 2)
-    return Scene(name=name, kind="synthetic", description=SYNTHETIC_SCENES[name], rgb=erp.rgb, distance=erp.distance,
-                 sky=erp.sky, distance_kind="truth", world=w,
-                 meta={"seed": seed, "parts": len(w.parts), "outdoor": w.outdoor, "eye_height_m": EYE_HEIGHT})
+    return Scene(
+        name=name,
+        kind="synthetic",
+        description=SYNTHETIC_SCENES[name],
+        rgb=erp.rgb,
+        distance=erp.distance,
+        sky=erp.sky,
+        distance_kind="truth",
+        world=w,
+        meta={"seed": seed, "parts": len(w.parts), "outdoor": w.outdoor, "eye_height_m": EYE_HEIGHT},
+    )

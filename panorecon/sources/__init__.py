@@ -1,4 +1,5 @@
 """Point sources: every initialization is a named source returning the same ``PointCloud`` and a report."""
+
 from .registry import SourceSpec, get_source, list_sources, register_source
 from .run import run_source
 

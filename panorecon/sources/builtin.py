@@ -1,6 +1,7 @@
 """The method's own point sources: the Fibonacci fusion (the method), the other view layouts with the same
 fusion, and random points. Peer methods (MoGe's merge, the teacher on the whole ERP, COLMAP) are plug-ins in
 the top-level ``baselines`` package, registered through the ``panorecon.sources`` entry points."""
+
 from __future__ import annotations
 
 import time
@@ -42,8 +43,15 @@ def _layout_source(layout_name: str, scene, teacher, views, fusion_config, view_
     t = time.perf_counter()
     pc = cloud_from_distance(scene, res.distance, layout.directions)
     seconds["points"] = time.perf_counter() - t
-    info = {"views": layout.n_views, "fov_deg": layout.fov_deg, "view_size": size, "layout": layout.name,
-            "fusion": res.report, "distance": res.distance, "view_depths": vds}
+    info = {
+        "views": layout.n_views,
+        "fov_deg": layout.fov_deg,
+        "view_size": size,
+        "layout": layout.name,
+        "fusion": res.report,
+        "distance": res.distance,
+        "view_depths": vds,
+    }
     return pc, seconds, info
 
 

@@ -7,11 +7,12 @@ no depth teacher; the first line of its docstring is its description). The peer 
 ``baselines`` package come in that way too. A plug-in that fails to import is still listed; running it raises
 a PanoreconInputError naming the entry point and the import error, so one broken plug-in breaks no other.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Callable
 
 from ..io import PanoreconInputError
 
@@ -59,8 +60,10 @@ def _load_entry_points() -> None:
 
 def _broken(ep, error: Exception) -> Callable:
     def fn(*args, **kwargs):
-        raise PanoreconInputError(f"point source {ep.name!r}: its plug-in {ep.value} failed to load "
-                                  f"({type(error).__name__}: {error}); reinstall the package that provides it")
+        raise PanoreconInputError(
+            f"point source {ep.name!r}: its plug-in {ep.value} failed to load "
+            f"({type(error).__name__}: {error}); reinstall the package that provides it"
+        )
 
     return fn
 

@@ -1,4 +1,5 @@
 """Run one point source on one scene with one teacher, timed, and measured against the truth."""
+
 from __future__ import annotations
 
 import math
@@ -31,8 +32,15 @@ def _per_view_abs_rel(scene, view_depths) -> float:
             a, b = np.linalg.lstsq(A, truth_raw[ok].astype(np.float64), rcond=None)[0]
             fitted = np.full(v.depth.shape, np.nan)
             fitted[ok] = a * v.depth[ok] + b
-            pred = fitted if v.kind == "distance" else (fitted * v.camera.z_to_distance_factor() if v.kind == "z"
-                                                        else v.camera.z_to_distance_factor() / fitted)
+            pred = (
+                fitted
+                if v.kind == "distance"
+                else (
+                    fitted * v.camera.z_to_distance_factor()
+                    if v.kind == "z"
+                    else v.camera.z_to_distance_factor() / fitted
+                )
+            )
             m = depth_metrics(pred, true_d, "none", ~sky)
         else:
             m = depth_metrics(v.to_distance(), true_d, "none" if v.metric else "median", ~sky)
@@ -45,8 +53,14 @@ def _finite_or_na(d: dict, reason: str) -> dict:
     return {k: (v if not (isinstance(v, float) and not math.isfinite(v)) else f"n/a: {reason}") for k, v in d.items()}
 
 
-def run_source(scene, source_name: str, teacher_spec: str | None, views: int | None = None, fusion_config=None,
-               view_size: int | None = None):
+def run_source(
+    scene,
+    source_name: str,
+    teacher_spec: str | None,
+    views: int | None = None,
+    fusion_config=None,
+    view_size: int | None = None,
+):
     """-> (PointCloud, report dict). The report: source, teacher, scene, views, seconds per stage and total,
     peak_rss_mb (process peak so far), fusion solver report, depth and point metrics against the truth
     (median-aligned unless the teacher is metric; the cloud is scaled by the same factor before point
@@ -61,13 +75,21 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     teacher = get_teacher(teacher_spec) if spec.uses_teacher else None
     pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size)
     if len(pc) == 0:
-        raise PanoreconInputError(f"source {source_name!r} with teacher {teacher_spec!r} gave no point on scene "
-                                  f"{scene.name!r} (no valid fused depth; at small widths try a larger --width or "
-                                  "--view-size)")
+        raise PanoreconInputError(
+            f"source {source_name!r} with teacher {teacher_spec!r} gave no point on scene "
+            f"{scene.name!r} (no valid fused depth; at small widths try a larger --width or "
+            "--view-size)"
+        )
     t = time.perf_counter()
-    report = {"source": source_name, "teacher": teacher.name if teacher else None, "scene": scene.name,
-              "erp": [scene.width, scene.height], "views": info.get("views"), "view_size": info.get("view_size"),
-              "fov_deg": info.get("fov_deg")}
+    report = {
+        "source": source_name,
+        "teacher": teacher.name if teacher else None,
+        "scene": scene.name,
+        "erp": [scene.width, scene.height],
+        "views": info.get("views"),
+        "view_size": info.get("view_size"),
+        "fov_deg": info.get("fov_deg"),
+    }
     for key in ("fusion", "panoramas", "baseline"):  # solver statistics; multi-view baselines' inputs and report
         if key in info:
             report[key] = info[key]
@@ -83,7 +105,10 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
     if not scene.has_ground_truth:
         reason = f"scene {scene.name!r} has no ground truth"
         report["depth"] = f"n/a: {reason}"
-        report["points"] = {"count": len(pc), **{k: f"n/a: {reason}" for k in ("accuracy", "completeness", "chamfer", "fscore")}}
+        report["points"] = {
+            "count": len(pc),
+            **{k: f"n/a: {reason}" for k in ("accuracy", "completeness", "chamfer", "fscore")},
+        }
     else:
         scale = 1.0
         if distance is not None:
@@ -94,7 +119,8 @@ def run_source(scene, source_name: str, teacher_spec: str | None, views: int | N
                 # affine views fix the fused map only up to a global scale and (nearly) a shift in inverse
                 # distance: measured as well after that alignment, the protocol of the per-view number
                 report["depth_inverse_affine"] = _finite_or_na(
-                    depth_metrics(distance, scene.distance, "inverse-affine", ~scene.sky), "no pixel to compare")
+                    depth_metrics(distance, scene.distance, "inverse-affine", ~scene.sky), "no pixel to compare"
+                )
         else:
             report["depth"] = "n/a: the source gives no depth map"
         truth = scene.point_cloud()

@@ -6,6 +6,7 @@ colours, and what the caller adds (source, teacher, ...). A checkpoint for other
 ``PanoreconInputError``; an unreadable or malformed one (cut, foreign format) is set aside with a warning and
 training starts from step 0 (it never changes a result: a checkpoint is only a shortcut).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -34,9 +35,16 @@ def cloud_digest(point_cloud) -> str:
 
 def checkpoint_inputs(scene, point_cloud, config_digest: str, extra: dict | None = None) -> dict:
     """The keys a checkpoint must match to be resumed (all JSON scalars)."""
-    return {"scene": scene.name, "width": int(scene.width), "config": config_digest, "cloud": cloud_digest(point_cloud),
-            **{k: (None if v is None else v if isinstance(v, (int, float, bool)) else str(v))
-               for k, v in (extra or {}).items()}}
+    return {
+        "scene": scene.name,
+        "width": int(scene.width),
+        "config": config_digest,
+        "cloud": cloud_digest(point_cloud),
+        **{
+            k: (None if v is None else v if isinstance(v, (int, float, bool)) else str(v))
+            for k, v in (extra or {}).items()
+        },
+    }
 
 
 def save_checkpoint(path: Path, inputs: dict, state: dict) -> None:

@@ -9,6 +9,7 @@ coloured); the trainer composites ``image + (1 - alpha) x background(ray)`` for 
 learned), so it cannot take over the geometry that the pseudo-labels, all seen from the centre, would let a
 learned map explain; it costs no Gaussians and adds nothing to the depth term (alpha is unchanged).
 """
+
 from __future__ import annotations
 
 import math

@@ -5,15 +5,24 @@ Pseudo-labels: views at the panorama centre looking along a dense layout (Fibona
 uses 120-360), their RGB resampled from the ERP and their depth from a teacher. Held-out views: true
 renders from positions away from the centre (inside the scene's free space), never trained on.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 
-from ..geometry import (PinholeCamera, centred_camera, erp_to_perspective, intrinsics_from_fov, look_at_rotation,
-                        make_layout, sample_erp, viewmat_from_pose)
+from ..geometry import (
+    PinholeCamera,
+    centred_camera,
+    erp_to_perspective,
+    intrinsics_from_fov,
+    look_at_rotation,
+    make_layout,
+    sample_erp,
+    viewmat_from_pose,
+)
 
 
 @dataclass
@@ -29,8 +38,14 @@ class LabelView:
     background: np.ndarray | None = None
 
 
-def make_pseudo_labels(scene, n_views: int, size: int, fov_deg: float = 60.0, layout: str = "fibonacci",
-                       depth_fn: Callable[[Sequence[PinholeCamera]], Sequence[np.ndarray]] | None = None) -> list[LabelView]:
+def make_pseudo_labels(
+    scene,
+    n_views: int,
+    size: int,
+    fov_deg: float = 60.0,
+    layout: str = "fibonacci",
+    depth_fn: Callable[[Sequence[PinholeCamera]], Sequence[np.ndarray]] | None = None,
+) -> list[LabelView]:
     """``n_views`` perspective labels of ``size``² pixels at the panorama centre; ``depth_fn(cameras)`` returns
     one z-depth map per camera (or None to train on colour alone)."""
     if n_views < 1 or size < 8:
@@ -40,8 +55,14 @@ def make_pseudo_labels(scene, n_views: int, size: int, fov_deg: float = 60.0, la
     depths = list(depth_fn(cams)) if depth_fn is not None else [None] * len(cams)
     if len(depths) != len(cams):
         raise ValueError(f"depth_fn returned {len(depths)} maps for {len(cams)} cameras")
-    return [LabelView(c, erp_to_perspective(scene.rgb, c).astype(np.float32) / 255.0,
-                      None if d is None else np.asarray(d, np.float32)) for c, d in zip(cams, depths)]
+    return [
+        LabelView(
+            c,
+            erp_to_perspective(scene.rgb, c).astype(np.float32) / 255.0,
+            None if d is None else np.asarray(d, np.float32),
+        )
+        for c, d in zip(cams, depths)
+    ]
 
 
 def make_heldout_views(scene, n_views: int, size: int, fov_deg: float = 60.0, seed: int = 0) -> list[LabelView]:
@@ -60,15 +81,18 @@ def make_heldout_views(scene, n_views: int, size: int, fov_deg: float = 60.0, se
         forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         cam = PinholeCamera(K, viewmat_from_pose(look_at_rotation(forward), p), size, size)
         r = scene.world.render_view(cam)
-        views.append(LabelView(cam, r.rgb.astype(np.float32) / 255.0, np.where(r.sky, np.nan, r.depth_z).astype(np.float32)))
+        views.append(
+            LabelView(cam, r.rgb.astype(np.float32) / 255.0, np.where(r.sky, np.nan, r.depth_z).astype(np.float32))
+        )
     return views
 
 
 COVISIBLE_REL_TOL = 0.05
 
 
-def make_panorama_heldout_views(scene, panoramas, n_views: int, size: int, fov_deg: float = 60.0,
-                                seed: int = 0) -> list[LabelView]:
+def make_panorama_heldout_views(
+    scene, panoramas, n_views: int, size: int, fov_deg: float = 60.0, seed: int = 0
+) -> list[LabelView]:
     """Held-out views on a real scene from its other panoramas (true images taken elsewhere in the same space).
 
     ``panoramas``: [(offset [3] metres of that panorama's centre from the scene's, rgb [H, W, 3] uint8, ray

@@ -3,6 +3,7 @@
 SSIM: 11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2 on [0, 1] images, computed on the
 'valid' region (no padding) and averaged over pixels and channels.
 """
+
 from __future__ import annotations
 
 import torch
@@ -53,7 +54,9 @@ def ssim_reference(a: torch.Tensor, b: torch.Tensor, size: int = 11, sigma: floa
     return _ssim_map(conv(x), conv(y), conv(x * x), conv(y * y), conv(x * y)).mean()
 
 
-def pearson_depth_loss(rendered: torch.Tensor, teacher: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+def pearson_depth_loss(
+    rendered: torch.Tensor, teacher: torch.Tensor, valid: torch.Tensor | None = None
+) -> torch.Tensor:
     """1 - Pearson correlation between rendered and teacher depth over valid pixels (eq. 10-11): invariant to
     the teacher's scale and shift. Fewer than 2 valid pixels or a constant map give 0 loss. Masked sums, no
     boolean indexing or branch on a value: nothing is read back to the host (``pearson_depth_loss_reference``
@@ -73,8 +76,9 @@ def pearson_depth_loss(rendered: torch.Tensor, teacher: torch.Tensor, valid: tor
     return torch.where(use, 1 - corr, x0.sum() * 0)
 
 
-def pearson_depth_loss_reference(rendered: torch.Tensor, teacher: torch.Tensor,
-                                 valid: torch.Tensor | None = None) -> torch.Tensor:
+def pearson_depth_loss_reference(
+    rendered: torch.Tensor, teacher: torch.Tensor, valid: torch.Tensor | None = None
+) -> torch.Tensor:
     """``pearson_depth_loss`` by boolean indexing and host-side branches: the reference the tests compare with."""
     ok = torch.isfinite(teacher) & torch.isfinite(rendered)
     if valid is not None:

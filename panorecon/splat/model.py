@@ -3,6 +3,7 @@
 means [N,3] metres; quats [N,4] wxyz (unnormalised); log_scales [N,3] (log metres); logit_opacities [N];
 sh0 [N,1,3] (degree-0 SH of the colour) and shN [N,(d+1)^2-1,3]. float32.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -6,6 +6,7 @@ view's inscribed 30-degree cone). Not a cube: EWA splatting's affine approximati
 axis of a 90-degree face smear over its centre. ``render_panorama_reference`` renders one 1x1 camera per ERP
 pixel, looking exactly along its ray: slow, obviously right, and the test's yardstick.
 """
+
 from __future__ import annotations
 
 import math
@@ -13,25 +14,43 @@ import math
 import numpy as np
 import torch
 
-from ..geometry import (centred_camera, erp_directions, fibonacci_directions, look_at_rotation, perspective_to_erp,
-                        viewmat_from_pose)
+from ..geometry import (
+    centred_camera,
+    erp_directions,
+    fibonacci_directions,
+    look_at_rotation,
+    perspective_to_erp,
+    viewmat_from_pose,
+)
 from .model import GaussianModel
 from .rasterize import rasterize
 
 VIEWS, VIEW_FOV_DEG = 48, 60.0
 
 
-def _render(model: GaussianModel, viewmats: np.ndarray, Ks: np.ndarray, width: int, height: int,
-            backend: str) -> np.ndarray:
+def _render(
+    model: GaussianModel, viewmats: np.ndarray, Ks: np.ndarray, width: int, height: int, backend: str
+) -> np.ndarray:
     with torch.no_grad():
-        img = rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(),
-                        torch.tensor(viewmats, dtype=torch.float32), torch.tensor(Ks, dtype=torch.float32),
-                        width, height, sh_degree=model.sh_degree, backend=backend)[0]
+        img = rasterize(
+            model.means,
+            model.quats,
+            model.scales(),
+            model.opacities(),
+            model.sh(),
+            torch.tensor(viewmats, dtype=torch.float32),
+            torch.tensor(Ks, dtype=torch.float32),
+            width,
+            height,
+            sh_degree=model.sh_degree,
+            backend=backend,
+        )[0]
     return img.clamp(0, 1).numpy()
 
 
-def render_panorama(model: GaussianModel, height: int, position=(0.0, 0.0, 0.0), backend: str = "auto",
-                    view_size: int | None = None) -> np.ndarray:
+def render_panorama(
+    model: GaussianModel, height: int, position=(0.0, 0.0, 0.0), backend: str = "auto", view_size: int | None = None
+) -> np.ndarray:
     """ERP render [height, 2*height, 3] float32 in [0, 1] of ``model`` seen from ``position`` (metres);
     ``view_size``: pixels per view (default: the ERP's resolution, height / 3 for 60 degrees)."""
     if height < 2:
@@ -49,8 +68,9 @@ def render_panorama(model: GaussianModel, height: int, position=(0.0, 0.0, 0.0),
     return out
 
 
-def render_panorama_reference(model: GaussianModel, height: int, position=(0.0, 0.0, 0.0),
-                              backend: str = "torch") -> np.ndarray:
+def render_panorama_reference(
+    model: GaussianModel, height: int, position=(0.0, 0.0, 0.0), backend: str = "torch"
+) -> np.ndarray:
     """The same panorama by one 1x1-pixel camera (1 degree FOV) per ERP pixel along its exact ray; slow."""
     width = 2 * height
     dirs = erp_directions(height, width).reshape(-1, 3)

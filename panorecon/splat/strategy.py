@@ -11,6 +11,7 @@ start with zero moments).
 ``AdaptiveStrategy`` is the method's adaptive optimisation (§2.5): the same densification, but pruning by
 contribution rather than by opacity alone (see its docstring).
 """
+
 from __future__ import annotations
 
 import math
@@ -24,7 +25,9 @@ from .rasterize import quat_to_rotmat
 PARAM_NAMES = ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")
 
 
-def edit_parameters(model: GaussianModel, optimizer: torch.optim.Optimizer, keep: torch.Tensor, new: dict | None = None) -> None:
+def edit_parameters(
+    model: GaussianModel, optimizer: torch.optim.Optimizer, keep: torch.Tensor, new: dict | None = None
+) -> None:
     """Keep the Gaussians selected by the bool mask ``keep`` and append ``new`` (name -> tensor of new rows),
     editing every parameter and its Adam state (exp_avg, exp_avg_sq) in step."""
     for group in optimizer.param_groups:
@@ -106,8 +109,8 @@ class DefaultStrategy:
                     idx = torch.nonzero(split).flatten().repeat(2)
                     R = quat_to_rotmat(model.quats.detach()[idx])
                     noise = torch.randn(len(idx), 3, device=idx.device) * model.scales().detach()[idx]
-                    new["means"][-2 * ns:] += (R @ noise[..., None])[..., 0]
-                    new["log_scales"][-2 * ns:] -= math.log(1.6)
+                    new["means"][-2 * ns :] += (R @ noise[..., None])[..., 0]
+                    new["log_scales"][-2 * ns :] -= math.log(1.6)
             low = self.prune_mask(model, it)
             keep = ~(split | low)
             edit_parameters(model, optimizer, keep, new or None)

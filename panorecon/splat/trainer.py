@@ -1,4 +1,5 @@
 """The shared Gaussian trainer: every point source is judged through it (paper §2.3, §2.5)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -17,9 +18,9 @@ from ..device import device_record, reset_peak_memory, resolve_device, synchroni
 from ..io import peak_rss_mb, write_image, write_json
 from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import MODEL_KEYS, checkpoint_inputs, load_checkpoint, save_checkpoint
+from .initial import points_for_resolution, sky_environment, thin_cloud, view_background
 from .labels import LabelView, make_heldout_views, make_panorama_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
-from .initial import points_for_resolution, sky_environment, thin_cloud, view_background
 from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
@@ -56,10 +57,14 @@ class TrainConfig:
     checkpoint_every: int = _f(500, "steps between checkpoints (out_dir/ckpt.pt)")
     heldout: int = _f(8, "held-out true views (synthetic scenes; dataset scenes with other posed panoramas)")
     history_every: int = _f(100, "steps between history samples (training-view and held-out PSNR)")
-    sky: str = _f("panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) "
-                              "or none")
-    init_pixels_per_point: float = _f(1.0, "label pixels per initial point over the sphere: the source's cloud is "
-                                      "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)")
+    sky: str = _f(
+        "panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none"
+    )
+    init_pixels_per_point: float = _f(
+        1.0,
+        "label pixels per initial point over the sphere: the source's cloud is "
+        "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)",
+    )
     seed: int = _f(0, "random seed")
 
     def digest(self) -> str:
@@ -78,15 +83,34 @@ def _cameras(views: list[LabelView], device) -> tuple[torch.Tensor, torch.Tensor
     return V, K
 
 
-def _render(model: GaussianModel, views: list[LabelView], cfg: TrainConfig, sh_degree: int, backend: str,
-            return_contrib: bool = False, cameras=None, background=None):
+def _render(
+    model: GaussianModel,
+    views: list[LabelView],
+    cfg: TrainConfig,
+    sh_degree: int,
+    backend: str,
+    return_contrib: bool = False,
+    cameras=None,
+    background=None,
+):
     """Render ``views`` (their cameras given as ``cameras`` = (viewmats, Ks) when already on the device) over
     their sky background (``background`` [V, h, w, 3] when already on the device)."""
     dev = model.means.device
     V, K = cameras if cameras is not None else _cameras(views, dev)
-    img, alpha, depth, meta = rasterize(model.means, model.quats, model.scales(), model.opacities(), model.sh(), V, K,
-                                        cfg.res, cfg.res, sh_degree=sh_degree, backend=backend,
-                                        return_contrib=return_contrib)
+    img, alpha, depth, meta = rasterize(
+        model.means,
+        model.quats,
+        model.scales(),
+        model.opacities(),
+        model.sh(),
+        V,
+        K,
+        cfg.res,
+        cfg.res,
+        sh_degree=sh_degree,
+        backend=backend,
+        return_contrib=return_contrib,
+    )
     if background is None and views[0].background is not None:  # the sky environment (splat/initial.py)
         background = torch.from_numpy(np.stack([v.background for v in views])).to(dev)
     if background is not None:
@@ -98,8 +122,17 @@ def _heldout_psnr(model, views, cfg, backend) -> float:
     """Mean PSNR (dB) of the held-out views, the cheap history sample (no SSIM, no LPIPS)."""
     dev = model.means.device
     with torch.no_grad():
-        return float(np.mean([psnr(_render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1),
-                                   torch.from_numpy(v.rgb).to(dev)) for v in views]))
+        return float(
+            np.mean(
+                [
+                    psnr(
+                        _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1),
+                        torch.from_numpy(v.rgb).to(dev),
+                    )
+                    for v in views
+                ]
+            )
+        )
 
 
 def _evaluate(model, views, cfg, backend) -> dict:
@@ -117,8 +150,12 @@ def _evaluate(model, views, cfg, backend) -> dict:
             ss.append(float(ssim(img, t)))
             if not isinstance(net, str):
                 lp.append(lpips_distance(net, img, t))
-    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "lpips": float(np.mean(lp)) if lp else net,
-            "views": len(views)}
+    return {
+        "psnr": float(np.mean(ps)),
+        "ssim": float(np.mean(ss)),
+        "lpips": float(np.mean(lp)) if lp else net,
+        "views": len(views),
+    }
 
 
 def _evaluate_masked(model, views, cfg, backend) -> dict:
@@ -134,10 +171,16 @@ def _evaluate_masked(model, views, cfg, backend) -> dict:
             ps.append(psnr(img[m], torch.from_numpy(v.rgb)[m]))
             pixels += int(m.sum())
     reason = "n/a: held-out real panoramas are scored on their co-visible pixels only (PSNR)"
-    return {"psnr": float(np.mean(ps)) if ps else "n/a: no co-visible pixel", "ssim": reason, "lpips": reason,
-            "views": len(ps), "pixels": pixels, "protocol": "other panoramas of the space, pixels the training "
-            "panorama also sees (true distances agree within 5 %)",
-            "covisible_fraction": pixels / float(sum(v.mask.size for v in views))}
+    return {
+        "psnr": float(np.mean(ps)) if ps else "n/a: no co-visible pixel",
+        "ssim": reason,
+        "lpips": reason,
+        "views": len(ps),
+        "pixels": pixels,
+        "protocol": "other panoramas of the space, pixels the training "
+        "panorama also sees (true distances agree within 5 %)",
+        "covisible_fraction": pixels / float(sum(v.mask.size for v in views)),
+    }
 
 
 def best_heldout(history: list[dict]) -> dict | str:
@@ -153,12 +196,21 @@ def best_heldout(history: list[dict]) -> dict | str:
 def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
     """One Adam group per parameter (named, for the strategies' edits), eps 1e-15 as in 3DGS; the fused
     kernel (one pass per tensor, ~3x faster than the per-tensor loop at 100k+ Gaussians on CPU)."""
-    return torch.optim.Adam([{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15,
-                            fused=True)
+    return torch.optim.Adam(
+        [{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15, fused=True
+    )
 
 
-def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progress: bool = True,
-          inputs: dict | None = None, device: str | torch.device = "auto") -> dict:
+def train(
+    scene,
+    point_cloud,
+    config: TrainConfig,
+    out_dir,
+    depth_fn=None,
+    progress: bool = True,
+    inputs: dict | None = None,
+    device: str | torch.device = "auto",
+) -> dict:
     """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
     (3DGS layout), cameras.json (pseudo-label and held-out cameras: viewmat, K, size), renders/, metrics.json and
     ckpt.pt, resumed (on any device) when present and written for the same scene, width, config, cloud and
@@ -188,19 +240,27 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     elif cfg.heldout and scene.has_ground_truth and scene.meta.get("others"):  # a dataset space's other panoramas
         from ..scenes.datasets import heldout_panoramas
 
-        heldout = make_panorama_heldout_views(scene, heldout_panoramas(scene), cfg.heldout, cfg.res, cfg.fov_deg,
-                                              cfg.seed)
+        heldout = make_panorama_heldout_views(
+            scene, heldout_panoramas(scene), cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed
+        )
     env = sky_environment(scene) if cfg.sky == "panorama" else None
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
     if cfg.init_pixels_per_point:
-        point_cloud = thin_cloud(point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point),
-                                 cfg.seed)
+        point_cloud = thin_cloud(
+            point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point), cfg.seed
+        )
     model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree).to(dev)
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
-    groups = [("means", cfg.lr_means * extent), ("quats", cfg.lr_quats), ("log_scales", cfg.lr_scales),
-              ("logit_opacities", cfg.lr_opacities), ("sh0", cfg.lr_sh0), ("shN", cfg.lr_shN)]
+    groups = [
+        ("means", cfg.lr_means * extent),
+        ("quats", cfg.lr_quats),
+        ("log_scales", cfg.lr_scales),
+        ("logit_opacities", cfg.lr_opacities),
+        ("sh0", cfg.lr_sh0),
+        ("shN", cfg.lr_shN),
+    ]
     opt = _adam(model, groups)
     strategy = STRATEGIES[cfg.strategy](refine_stop=cfg.iters // 2)
     start, history = 0, []
@@ -222,8 +282,9 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
     targets = torch.from_numpy(np.stack([v.rgb for v in labels])).to(dev)
     teachers = None if labels[0].depth is None else torch.from_numpy(np.stack([v.depth for v in labels])).to(dev)
     viewmats, Ks = _cameras(labels, dev)
-    backgrounds = (None if labels[0].background is None
-                   else torch.from_numpy(np.stack([v.background for v in labels])).to(dev))
+    backgrounds = (
+        None if labels[0].background is None else torch.from_numpy(np.stack([v.background for v in labels])).to(dev)
+    )
     first_bad = torch.full((), -1, dtype=torch.long, device=dev)  # first iteration with a non-finite loss
     synchronize(dev)
     t = time.perf_counter()
@@ -237,15 +298,30 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         opt.param_groups[0]["lr"] = lr
         k = int(order[it])
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every)
-        img, alpha, depth, meta = _render(model, [labels[k]], cfg, deg, backend, strategy.needs_contrib,
-                                          (viewmats[k:k + 1], Ks[k:k + 1]),
-                                          None if backgrounds is None else backgrounds[k:k + 1])
+        img, alpha, depth, meta = _render(
+            model,
+            [labels[k]],
+            cfg,
+            deg,
+            backend,
+            strategy.needs_contrib,
+            (viewmats[k : k + 1], Ks[k : k + 1]),
+            None if backgrounds is None else backgrounds[k : k + 1],
+        )
         meta["means2d"].retain_grad()
-        target = targets[k:k + 1]
+        target = targets[k : k + 1]
         teacher = None if teachers is None else teachers[k]
         expected_z = (depth / alpha.clamp_min(1e-6))[0, ..., 0]
-        loss = total_loss(img, target, expected_z, teacher, alpha[0, ..., 0].detach() > 0.5,
-                          cfg.w_l1, cfg.w_ssim, cfg.w_depth if teacher is not None else 0.0)
+        loss = total_loss(
+            img,
+            target,
+            expected_z,
+            teacher,
+            alpha[0, ..., 0].detach() > 0.5,
+            cfg.w_l1,
+            cfg.w_ssim,
+            cfg.w_depth if teacher is not None else 0.0,
+        )
         # recorded on the device and checked where the loop syncs anyway (history, checkpoints, the end)
         first_bad = torch.where((first_bad < 0) & ~torch.isfinite(loss.detach()), it, first_bad)
         loss.backward()
@@ -253,15 +329,25 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
-        sync_now = ((cfg.history_every and (it + 1) % cfg.history_every == 0) or it + 1 == cfg.iters
-                    or (cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0))
+        sync_now = (
+            (cfg.history_every and (it + 1) % cfg.history_every == 0)
+            or it + 1 == cfg.iters
+            or (cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0)
+        )
         if sync_now and int(first_bad) >= 0:
-            raise FloatingPointError(f"non-finite loss at iteration {int(first_bad)}: check the point cloud and "
-                                     "learning rates")
+            raise FloatingPointError(
+                f"non-finite loss at iteration {int(first_bad)}: check the point cloud and learning rates"
+            )
         if cfg.history_every and (it + 1) % cfg.history_every == 0:
             te = time.perf_counter()
-            history.append({"iteration": it + 1, "seconds": clock0 + te - t - history_s,
-                            "psnr": psnr(img.detach().clamp(0, 1), target), "gaussians": len(model)})
+            history.append(
+                {
+                    "iteration": it + 1,
+                    "seconds": clock0 + te - t - history_s,
+                    "psnr": psnr(img.detach().clamp(0, 1), target),
+                    "gaussians": len(model),
+                }
+            )
             if heldout:
                 history[-1]["heldout_psnr"] = _heldout_psnr(model, heldout, cfg, backend)
             history_s += time.perf_counter() - te
@@ -270,32 +356,67 @@ def train(scene, point_cloud, config: TrainConfig, out_dir, depth_fn=None, progr
             rng = {"rng": torch.get_rng_state()}
             if dev.type == "cuda":
                 rng["cuda_rng"] = torch.cuda.get_rng_state(dev)
-            save_checkpoint(ckpt, keys, {"iteration": it + 1, "history": history, "optimizer": opt.state_dict(),
-                                         "strategy": strategy.state_dict(), **rng,
-                                         "model": {n: p.detach() for n, p in model.named_parameters()}})
+            save_checkpoint(
+                ckpt,
+                keys,
+                {
+                    "iteration": it + 1,
+                    "history": history,
+                    "optimizer": opt.state_dict(),
+                    "strategy": strategy.state_dict(),
+                    **rng,
+                    "model": {n: p.detach() for n, p in model.named_parameters()},
+                },
+            )
     synchronize(dev)
     seconds["train"] = time.perf_counter() - t - history_s
     seconds["history"] = history_s
     t = time.perf_counter()
-    metrics = {"pseudo-label": _evaluate(model, labels, cfg, backend),
-               "held-out": _evaluate(model, heldout, cfg, backend) if heldout else "n/a: scene has no ground-truth world"}
+    metrics = {
+        "pseudo-label": _evaluate(model, labels, cfg, backend),
+        "held-out": _evaluate(model, heldout, cfg, backend) if heldout else "n/a: scene has no ground-truth world",
+    }
     seconds["eval"] = time.perf_counter() - t
     save_ply(model, out / "point_cloud.ply")
     if env is not None:  # the sky the Gaussians were trained in front of, for viewers of the .ply
         write_image(out / "sky.png", (env * 255).round().astype(np.uint8))
-    write_json(out / "cameras.json", {name: [{"viewmat": v.camera.viewmat.tolist(), "K": v.camera.K.tolist(),
-                                              "width": v.camera.width, "height": v.camera.height} for v in views]
-                                      for name, views in (("pseudo-label", labels), ("held-out", heldout))})
+    write_json(
+        out / "cameras.json",
+        {
+            name: [
+                {
+                    "viewmat": v.camera.viewmat.tolist(),
+                    "K": v.camera.K.tolist(),
+                    "width": v.camera.width,
+                    "height": v.camera.height,
+                }
+                for v in views
+            ]
+            for name, views in (("pseudo-label", labels), ("held-out", heldout))
+        },
+    )
     with torch.no_grad():
         for name, views in (("label", labels[:3]), ("heldout", heldout[:3])):
             for k, v in enumerate(views):
                 img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).cpu().numpy()
-                write_image(out / "renders" / f"{name}_{k}.png", (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8))
+                write_image(
+                    out / "renders" / f"{name}_{k}.png",
+                    (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8),
+                )
     seconds["total"] = time.perf_counter() - t0
-    metrics.update(seconds=seconds, iterations=cfg.iters, gaussians=len(model), initial_gaussians=len(point_cloud),
-                   backend=backend, strategy=cfg.strategy, peak_rss_mb=peak_rss_mb(), **device_record(dev),
-                   history=history, heldout_best=best_heldout(history),
-                   config=dataclasses.asdict(cfg))
+    metrics.update(
+        seconds=seconds,
+        iterations=cfg.iters,
+        gaussians=len(model),
+        initial_gaussians=len(point_cloud),
+        backend=backend,
+        strategy=cfg.strategy,
+        peak_rss_mb=peak_rss_mb(),
+        **device_record(dev),
+        history=history,
+        heldout_best=best_heldout(history),
+        config=dataclasses.asdict(cfg),
+    )
     write_json(out / "metrics.json", metrics)
     ckpt.unlink(missing_ok=True)
     return metrics

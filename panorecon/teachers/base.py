@@ -1,9 +1,11 @@
 """The teacher interface: a monocular depth model that gives depth for perspective views and for the ERP."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 
@@ -50,15 +52,15 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
         r = world.render_view(camera)
         return r.distance, r.sky
     if scene.distance is None or scene.distance_kind != "truth":
-        raise PanoreconInputError(f"scene {scene.name!r} has no true depth (its depth is {scene.distance_kind!r}); "
-                                  "simulated teachers need a synthetic scene or a real one with --depth")
+        raise PanoreconInputError(
+            f"scene {scene.name!r} has no true depth (its depth is {scene.distance_kind!r}); "
+            "simulated teachers need a synthetic scene or a real one with --depth"
+        )
     from ..geometry import sample_erp
 
     d = sample_erp(scene.distance, camera.world_rays(), "nearest")
     sky = sample_erp(scene.sky.astype(np.uint8), camera.world_rays(), "nearest").astype(bool)
     return d.astype(np.float32), sky
-
-
 
 
 def sky_of_view(scene, cam: PinholeCamera) -> np.ndarray:

@@ -4,10 +4,11 @@ A 16-bit PNG holds distance in units of ``scale`` metres (HoHoNet's ``*.pred_dep
 0 = unknown); a ``.npy`` holds float metres (scale multiplies it). The map must be 2:1. Views sample it
 with nearest-neighbour lookups along their rays.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 from urllib.parse import parse_qs
 
 import cv2
@@ -25,7 +26,9 @@ class FileTeacher:
         opts = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
         unknown = set(opts) - {"scale", "metric"}
         if unknown:
-            raise PanoreconInputError(f"teacher file:{spec}: unknown option(s) {sorted(unknown)}; expected scale=, metric=")
+            raise PanoreconInputError(
+                f"teacher file:{spec}: unknown option(s) {sorted(unknown)}; expected scale=, metric="
+            )
         try:
             self.scale = float(opts.get("scale", 1.0))
         except ValueError:
@@ -51,15 +54,19 @@ class FileTeacher:
         else:
             raw = read_image(self.path, erp=True, unchanged=True)
             if raw.ndim != 2:
-                raise PanoreconInputError(f"{self.path}: expected a single-channel depth image, got {raw.shape[2]} channels")
+                raise PanoreconInputError(
+                    f"{self.path}: expected a single-channel depth image, got {raw.shape[2]} channels"
+                )
             raw = raw.astype(np.float64)
             raw[raw == 0] = np.nan
         with np.errstate(over="ignore", invalid="ignore"):
             d = (raw * self.scale).astype(np.float32)
         d[~((d > 0) & np.isfinite(d))] = np.nan
         if not np.isfinite(d).any():
-            raise PanoreconInputError(f"{self.path}: holds no valid depth (every value is 0, NaN, Inf or negative); "
-                                      "expected positive ray distances")
+            raise PanoreconInputError(
+                f"{self.path}: holds no valid depth (every value is 0, NaN, Inf or negative); "
+                "expected positive ray distances"
+            )
         return d
 
     def _for(self, scene) -> np.ndarray:

@@ -10,12 +10,13 @@ processor's own ``post_process_depth_estimation`` (its resize, and ZoeDepth's pa
 teacher never re-implements a model's resize, crop or padding. Depth Pro gets each view's true horizontal
 FOV in place of its own FOV estimate, which sets its metric scale.
 """
+
 from __future__ import annotations
 
 import importlib.util
 import inspect
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 from urllib.parse import parse_qs
 
 import numpy as np
@@ -69,15 +70,19 @@ def output_kind(config) -> OutputKind:
     key = (config.model_type, getattr(config, "depth_estimation_type", None))
     if key not in OUTPUT_KINDS:
         known = ", ".join(m if t is None else f"{m} ({t})" for m, t in OUTPUT_KINDS)
-        raise PanoreconInputError(f"model_type {key[0]!r}" + (f" with depth_estimation_type {key[1]!r}" if key[1]
-                                  else "") + f" is not in panorecon's table of depth outputs; known: {known}")
+        raise PanoreconInputError(
+            f"model_type {key[0]!r}"
+            + (f" with depth_estimation_type {key[1]!r}" if key[1] else "")
+            + f" is not in panorecon's table of depth outputs; known: {known}"
+        )
     return OUTPUT_KINDS[key]
 
 
 def _not_found(source: str) -> PanoreconInputError:
     return PanoreconInputError(
         f"teacher hf:{source}: no such local folder and not in the Hugging Face cache (loading is local only); on a "
-        f"machine with network run `hf download {source} --local-dir DIR`, copy DIR here and use hf:DIR")
+        f"machine with network run `hf download {source} --local-dir DIR`, copy DIR here and use hf:DIR"
+    )
 
 
 class HFTeacher:
@@ -87,8 +92,10 @@ class HFTeacher:
         source, _, query = spec.partition("?")
         opts = {k: v[-1] for k, v in parse_qs(query).items()}
         if set(opts) - {"batch", "device"}:
-            raise PanoreconInputError(f"teacher hf:{spec}: unknown option(s) {sorted(set(opts) - {'batch', 'device'})};"
-                                      " expected batch=, device=")
+            raise PanoreconInputError(
+                f"teacher hf:{spec}: unknown option(s) {sorted(set(opts) - {'batch', 'device'})};"
+                " expected batch=, device="
+            )
         if not source:
             raise PanoreconInputError("teacher hf:: expected hf:<model id or local folder>")
         try:
@@ -113,9 +120,11 @@ class HFTeacher:
             raise _not_found(source) from None
         self.output = output_kind(config)
         if config.model_type in _NEEDS_TORCHVISION and importlib.util.find_spec("torchvision") is None:
-            raise PanoreconInputError(f"teacher hf:{source}: transformers' {config.model_type} image processor needs "
-                                      f"torchvision: pip install torchvision (the release built for torch "
-                                      f"{torch.__version__.split('+')[0]})")
+            raise PanoreconInputError(
+                f"teacher hf:{source}: transformers' {config.model_type} image processor needs "
+                f"torchvision: pip install torchvision (the release built for torch "
+                f"{torch.__version__.split('+')[0]})"
+            )
         try:
             self.processor = AutoImageProcessor.from_pretrained(source, local_files_only=True)
             model = AutoModelForDepthEstimation.from_pretrained(source, local_files_only=True)
@@ -160,8 +169,10 @@ class HFTeacher:
     def predict_views(self, scene, cameras: Sequence[PinholeCamera]) -> list[ViewDepth]:
         outs = self.run([erp_to_perspective(scene.rgb, c) for c in cameras], [view_fov_deg(c) for c in cameras])
         o = self.output
-        return [ViewDepth(c, d, o.kind, self._valid(d) & ~sky_of_view(scene, c), affine=o.affine, metric=o.metric)
-                for c, d in zip(cameras, outs)]
+        return [
+            ViewDepth(c, d, o.kind, self._valid(d) & ~sky_of_view(scene, c), affine=o.affine, metric=o.metric)
+            for c, d in zip(cameras, outs)
+        ]
 
     def predict_erp(self, scene) -> ErpDepth:
         """The network on the whole ERP image, its z-depth read as ray distance (as single-image baselines do).
@@ -169,6 +180,10 @@ class HFTeacher:
         output is treated as relative, not metric."""
         d = self.run([scene.rgb])[0]
         o = self.output
-        return ErpDepth(d, "disparity" if o.kind == "disparity" else "distance", self._valid(d) & ~scene.sky,
-                        affine=o.affine, metric=o.metric and not o.takes_fov)
-
+        return ErpDepth(
+            d,
+            "disparity" if o.kind == "disparity" else "distance",
+            self._valid(d) & ~scene.sky,
+            affine=o.affine,
+            metric=o.metric and not o.takes_fov,
+        )

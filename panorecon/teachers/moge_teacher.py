@@ -7,10 +7,11 @@ with a ``scale_head`` their depth is metric. MoGe-1 gives an affine-invariant po
 solves from the view's true FOV (passed to ``infer``), so its depth is known up to scale. The output is
 z-depth at the view's own pixels (MoGe resizes internally), ``inf`` where MoGe's mask drops a pixel (sky).
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 from urllib.parse import parse_qs
 
 import numpy as np
@@ -53,8 +54,9 @@ class MoGeTeacher:
             raise PanoreconInputError(f"teacher moge:{spec}: batch={opts['batch']!r} must be a positive integer")
         device = opts.get("device", "cuda" if torch.cuda.is_available() else "cpu")
         if device not in ("cpu", "cuda") or (device == "cuda" and not torch.cuda.is_available()):
-            raise PanoreconInputError(f"teacher moge:{spec}: device={device!r}: expected cpu, or cuda where CUDA "
-                                      "exists")
+            raise PanoreconInputError(
+                f"teacher moge:{spec}: device={device!r}: expected cpu, or cuda where CUDA exists"
+            )
         self.name, self.progress, self.device = f"moge:{spec}", progress, torch.device(device)
         path = _checkpoint(source)
         try:
@@ -88,15 +90,28 @@ class MoGeTeacher:
     def predict_views(self, scene, cameras: Sequence[PinholeCamera]) -> list[ViewDepth]:
         outs = self.run([erp_to_perspective(scene.rgb, c) for c in cameras], [view_fov_deg(c) for c in cameras])
         o = self.output
-        return [ViewDepth(c, np.where(np.isfinite(d), d, np.nan), o.kind, np.isfinite(d) & (d > 0)
-                          & ~sky_of_view(scene, c), affine=o.affine, metric=o.metric) for c, d in zip(cameras, outs)]
+        return [
+            ViewDepth(
+                c,
+                np.where(np.isfinite(d), d, np.nan),
+                o.kind,
+                np.isfinite(d) & (d > 0) & ~sky_of_view(scene, c),
+                affine=o.affine,
+                metric=o.metric,
+            )
+            for c, d in zip(cameras, outs)
+        ]
 
     def predict_erp(self, scene) -> ErpDepth:
         """MoGe on the whole ERP image with its own FOV estimate (an ERP image has none), its z-depth read as ray
         distance; MoGe-2's metric scale rests on that estimate."""
         d = self.run([scene.rgb])[0]
-        return ErpDepth(np.where(np.isfinite(d), d, np.nan), "distance", np.isfinite(d) & (d > 0) & ~scene.sky,
-                        metric=self.output.metric)
+        return ErpDepth(
+            np.where(np.isfinite(d), d, np.nan),
+            "distance",
+            np.isfinite(d) & (d > 0) & ~scene.sky,
+            metric=self.output.metric,
+        )
 
 
 def _checkpoint(source: str) -> Path:
@@ -115,4 +130,5 @@ def _checkpoint(source: str) -> Path:
         raise PanoreconInputError(
             f"teacher moge:{source}: no such file or folder and not in the Hugging Face cache (loading is local "
             f"only); on a machine with network run `hf download {source} model.pt --local-dir DIR`, copy DIR here "
-            "and use moge:DIR") from None
+            "and use moge:DIR"
+        ) from None

@@ -9,11 +9,12 @@ Input: float32 NCHW in [0, 1] then (x - mean) / std; output [1, H, W] or [1, 1, 
 the view (bilinear). On the whole ERP (``erp-direct``) a z-depth output is read as ray distance: a
 perspective model run on an equirectangular image, as single-image baselines do.
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -35,7 +36,9 @@ class OnnxTeacher:
         if config is None:
             cfg_path = self.path.with_suffix(".json")
             if not cfg_path.is_file():
-                raise PanoreconInputError(f"{self.path}: expected its config {cfg_path} (input_size, mean, std, output, mode)")
+                raise PanoreconInputError(
+                    f"{self.path}: expected its config {cfg_path} (input_size, mean, std, output, mode)"
+                )
             try:
                 config = json.loads(cfg_path.read_text())
             except json.JSONDecodeError as e:
@@ -68,7 +71,10 @@ class OnnxTeacher:
         """RGB uint8 [h, w, 3] -> raw model output resized to [h, w] float32."""
         h, w = rgb.shape[:2]
         H, W = self.config["input_size"]
-        x = cv2.resize(rgb, (W, H), interpolation=cv2.INTER_AREA if H < h else cv2.INTER_LINEAR).astype(np.float32) / 255.0
+        x = (
+            cv2.resize(rgb, (W, H), interpolation=cv2.INTER_AREA if H < h else cv2.INTER_LINEAR).astype(np.float32)
+            / 255.0
+        )
         if self.config["channels"] == "BGR":
             x = x[..., ::-1]
         x = (x - np.asarray(self.config["mean"], np.float32)) / np.asarray(self.config["std"], np.float32)
@@ -85,8 +91,16 @@ class OnnxTeacher:
         views = []
         for cam in cameras:
             out = self.run(erp_to_perspective(scene.rgb, cam))
-            views.append(ViewDepth(cam, out, self.config["output"], self._valid(out) & ~sky_of_view(scene, cam),
-                                   affine=mode == "affine", metric=mode == "metric"))
+            views.append(
+                ViewDepth(
+                    cam,
+                    out,
+                    self.config["output"],
+                    self._valid(out) & ~sky_of_view(scene, cam),
+                    affine=mode == "affine",
+                    metric=mode == "metric",
+                )
+            )
         return views
 
     def predict_erp(self, scene) -> ErpDepth:
@@ -94,4 +108,3 @@ class OnnxTeacher:
         kind = "disparity" if self.config["output"] == "disparity" else "distance"
         mode = self.config["mode"]
         return ErpDepth(out, kind, self._valid(out) & ~scene.sky, affine=mode == "affine", metric=mode == "metric")
-

@@ -7,18 +7,19 @@ never as the model they imitate. Each error is deterministic from (profile, scen
 |---|---|---|---|---|---|---|
 | `sim:clean` | z-depth | scale in [0.5, 2] | none | none | 0.5 % | none |
 | `sim:relative` | z-depth | scale in [0.5, 2] | ±8 % (log amplitude 0.08) | σ = 1.5 px | 2 % | 1 % dropped |
-| `sim:affine-disparity` | disparity | scale in [0.5, 2] and shift ±10 % of the median | ±10 % | σ = 2 px | 3 % | 3 % dropped, 1 % NaN |
+| `sim:affine-disparity` | disparity | scale [0.5, 2], shift ±10 % of median | ±10 % | σ = 2 px | 3 % | 3 %; 1 % NaN |
 
 "Relative" outputs are known up to scale; "affine" outputs up to scale and shift (as MiDaS-style models).
 The smooth warp multiplies depth by exp(a * w(u, v)), w a sum of four random low-frequency cosines with
 unit peak; the edge blur is a Gaussian blur of the depth map that mixes foreground and background
 across depth edges; noise is multiplicative and Gaussian. Sky pixels are never valid.
 """
+
 from __future__ import annotations
 
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -47,11 +48,27 @@ PROFILES = {
     p.name: p
     for p in [
         SimProfile("clean", "relative z-depth: unknown scale, 0.5 % noise", "z", noise=0.005),
-        SimProfile("relative", "relative z-depth: scale, smooth ±8 % warp, edge blur 1.5 px, 2 % noise, 1 % dropped",
-                   "z", warp=0.08, edge_blur_px=1.5, noise=0.02, drop=0.01),
-        SimProfile("affine-disparity", "affine-invariant disparity: scale and shift, ±10 % warp, edge blur 2 px, "
-                   "3 % noise, 3 % dropped, 1 % NaN", "disparity", affine=True, shift_frac=0.1, warp=0.1,
-                   edge_blur_px=2.0, noise=0.03, drop=0.03, nan=0.01),
+        SimProfile(
+            "relative",
+            "relative z-depth: scale, smooth ±8 % warp, edge blur 1.5 px, 2 % noise, 1 % dropped",
+            "z",
+            warp=0.08,
+            edge_blur_px=1.5,
+            noise=0.02,
+            drop=0.01,
+        ),
+        SimProfile(
+            "affine-disparity",
+            "affine-invariant disparity: scale and shift, ±10 % warp, edge blur 2 px, 3 % noise, 3 % dropped, 1 % NaN",
+            "disparity",
+            affine=True,
+            shift_frac=0.1,
+            warp=0.1,
+            edge_blur_px=2.0,
+            noise=0.03,
+            drop=0.03,
+            nan=0.01,
+        ),
     ]
 }
 
@@ -114,8 +131,10 @@ class SimTeacher:
 
     def predict_erp(self, scene) -> ErpDepth:
         if scene.distance is None or scene.distance_kind != "truth":
-            raise PanoreconInputError(f"scene {scene.name!r} has no true depth; simulated teachers need a synthetic "
-                                      "scene or a real one with --depth")
+            raise PanoreconInputError(
+                f"scene {scene.name!r} has no true depth; simulated teachers need a synthetic "
+                "scene or a real one with --depth"
+            )
         out, valid = self._corrupt(scene.distance, scene.sky, self._rng(scene.name, 1_000_000))
         kind = "disparity" if self.profile.output == "disparity" else "distance"
         return ErpDepth(out, kind, valid, affine=self.profile.affine)

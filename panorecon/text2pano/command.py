@@ -1,4 +1,5 @@
 """``panorecon generate``: one panorama from a prompt or a Table 1 preset."""
+
 from __future__ import annotations
 
 import argparse
@@ -19,10 +20,15 @@ def add_generate_parser(sub) -> None:
     g.add_argument("--steps", type=T.STEPS, default=50)
     g.add_argument("--seed", type=T.SEED, default=0)
     g.add_argument("--width", type=T.ERP_WIDTH, default=2048, help="panorama width (height = width / 2)")
-    g.add_argument("--window", type=T.int_in(1, 4096, "window"), default=64,
-                   help="sliding-window width in latent columns (8 px each)")
-    g.add_argument("--stride", type=T.int_in(1, 4096, "stride"), default=16,
-                   help="latent columns between sliding windows")
+    g.add_argument(
+        "--window",
+        type=T.int_in(1, 4096, "window"),
+        default=64,
+        help="sliding-window width in latent columns (8 px each)",
+    )
+    g.add_argument(
+        "--stride", type=T.int_in(1, 4096, "stride"), default=16, help="latent columns between sliding windows"
+    )
     g.add_argument("--no-seam-block", action="store_true", help="turn the seam block off (for comparison)")
     g.add_argument("--out", required=True, type=T.out_file, help="output PNG")
     g.set_defaults(fn=run_generate)
@@ -34,8 +40,14 @@ def run_generate(args: argparse.Namespace) -> int:
     from ..metrics.seam import seam_discontinuity
     from .generator import GenerateConfig, PanoramaGenerator
 
-    cfg = GenerateConfig(width=args.width, steps=args.steps, seed=args.seed, window=args.window, stride=args.stride,
-                         seam_block=not args.no_seam_block)
+    cfg = GenerateConfig(
+        width=args.width,
+        steps=args.steps,
+        seed=args.seed,
+        window=args.window,
+        stride=args.stride,
+        seam_block=not args.no_seam_block,
+    )
     cfg.check()
     gen = PanoramaGenerator.from_pretrained(args.model, args.lora)
     img = gen.generate(args.preset or args.prompt, cfg, progress=True)

@@ -15,6 +15,7 @@ central region (the panorama) is kept, as diffusers' ``circular_padding`` does.
 Components come from a diffusers folder (``model_index.json`` with unet/, vae/, text_encoder/, tokenizer/,
 scheduler/) or a model id already in the local Hugging Face cache; nothing is downloaded.
 """
+
 from __future__ import annotations
 
 import copy
@@ -60,7 +61,8 @@ def _load_error(model: str, why: str) -> PanoreconInputError:
         f"text-to-panorama model {model!r}: {why}. Provide a diffusers folder (model_index.json with unet/, vae/, "
         "text_encoder/, tokenizer/, scheduler/), e.g. made on a machine with network access by "
         "`huggingface-cli download stabilityai/stable-diffusion-2-1-base --local-dir DIR`, and pass --model DIR; "
-        "panorecon never downloads at run time.")
+        "panorecon never downloads at run time."
+    )
 
 
 def _pad_width_circular(pad: int, conv: torch.nn.Conv2d, args: tuple) -> tuple:
@@ -71,8 +73,12 @@ def wrap_width_padding(module: torch.nn.Module) -> None:
     """Make every zero-padded Conv2d in ``module`` pad its input [B, C, H, W] circularly along W (zeros along
     H), in place; idempotent (a conv already changed has no width padding left)."""
     for conv in module.modules():
-        if isinstance(conv, torch.nn.Conv2d) and conv.padding_mode == "zeros" and isinstance(conv.padding, tuple) \
-                and conv.padding[1] > 0:
+        if (
+            isinstance(conv, torch.nn.Conv2d)
+            and conv.padding_mode == "zeros"
+            and isinstance(conv.padding, tuple)
+            and conv.padding[1] > 0
+        ):
             pad_h, pad_w = conv.padding
             conv.padding = (pad_h, 0)
             conv.register_forward_pre_hook(partial(_pad_width_circular, pad_w))
@@ -90,7 +96,7 @@ class PanoramaGenerator:
         wrap_width_padding(vae.decoder)
 
     @classmethod
-    def from_pretrained(cls, model: str | Path, lora: str | Path | None = None) -> "PanoramaGenerator":
+    def from_pretrained(cls, model: str | Path, lora: str | Path | None = None) -> PanoramaGenerator:
         """Load from a local folder or the local HF cache (``local_files_only``); one clear error when absent."""
         from diffusers import AutoencoderKL, DDIMScheduler, UNet2DConditionModel
         from transformers import CLIPTextModel, CLIPTokenizer
@@ -103,11 +109,13 @@ class PanoramaGenerator:
             raise _load_error(model, f"no such folder {path.resolve()}")
         kw = {"local_files_only": True}
         try:
-            gen = cls(UNet2DConditionModel.from_pretrained(model, subfolder="unet", **kw),
-                      AutoencoderKL.from_pretrained(model, subfolder="vae", **kw),
-                      CLIPTextModel.from_pretrained(model, subfolder="text_encoder", **kw),
-                      CLIPTokenizer.from_pretrained(model, subfolder="tokenizer", **kw),
-                      DDIMScheduler.from_pretrained(model, subfolder="scheduler", **kw))
+            gen = cls(
+                UNet2DConditionModel.from_pretrained(model, subfolder="unet", **kw),
+                AutoencoderKL.from_pretrained(model, subfolder="vae", **kw),
+                CLIPTextModel.from_pretrained(model, subfolder="text_encoder", **kw),
+                CLIPTokenizer.from_pretrained(model, subfolder="tokenizer", **kw),
+                DDIMScheduler.from_pretrained(model, subfolder="scheduler", **kw),
+            )
         except (OSError, ValueError) as e:
             raise _load_error(model, f"not found locally ({str(e).splitlines()[0]})") from None
         if lora is not None:
@@ -122,20 +130,30 @@ class PanoramaGenerator:
         if not Path(lora).exists():
             raise PanoreconInputError(f"--lora {lora}: no such file or folder")
         # a copy of the scheduler: the pipeline's constructor may rewrite its config (steps_offset, clip_sample)
-        pipe = StableDiffusionPipeline(vae=self.vae, text_encoder=self.text_encoder, tokenizer=self.tokenizer,
-                                       unet=self.unet, scheduler=copy.deepcopy(self.scheduler), safety_checker=None,
-                                       feature_extractor=None, requires_safety_checker=False)
+        pipe = StableDiffusionPipeline(
+            vae=self.vae,
+            text_encoder=self.text_encoder,
+            tokenizer=self.tokenizer,
+            unet=self.unet,
+            scheduler=copy.deepcopy(self.scheduler),
+            safety_checker=None,
+            feature_extractor=None,
+            requires_safety_checker=False,
+        )
         try:
             pipe.load_lora_weights(str(lora))
             pipe.fuse_lora()
         except (OSError, ValueError, KeyError) as e:
-            raise PanoreconInputError(f"--lora {lora}: could not be applied ({str(e).splitlines()[0]}); expected "
-                                      "LoRA weights for this model (diffusers loads them with peft)") from None
+            raise PanoreconInputError(
+                f"--lora {lora}: could not be applied ({str(e).splitlines()[0]}); expected "
+                "LoRA weights for this model (diffusers loads them with peft)"
+            ) from None
 
     @torch.no_grad()
     def encode_prompt(self, text: str) -> torch.Tensor:
-        ids = self.tokenizer(text, padding="max_length", max_length=self.tokenizer.model_max_length,
-                             truncation=True, return_tensors="pt").input_ids
+        ids = self.tokenizer(
+            text, padding="max_length", max_length=self.tokenizer.model_max_length, truncation=True, return_tensors="pt"
+        ).input_ids
         return self.text_encoder(ids)[0]
 
     def _noise_prediction(self, latent, t, cond, uncond, guidance):
@@ -164,10 +182,10 @@ class PanoramaGenerator:
         for t in tqdm(self.scheduler.timesteps, disable=not progress, desc="denoise"):
             x = self.scheduler.scale_model_input(latent, t)
             eps_sum, weight = torch.zeros_like(latent), torch.zeros(w)
-            patches = torch.cat([x[..., s:s + window] for s in starts])
+            patches = torch.cat([x[..., s : s + window] for s in starts])
             for s, eps in zip(starts, self._noise_prediction(patches, t, cond, uncond, cfg.guidance)):
-                eps_sum[..., s:s + window] += eps
-                weight[s:s + window] += 1
+                eps_sum[..., s : s + window] += eps
+                weight[s : s + window] += 1
             if cfg.seam_block:
                 eps = self._noise_prediction(x[..., seam_cols], t, cond, uncond, cfg.guidance)[0]
                 eps_sum[..., seam_cols] += eps * seam_w
@@ -183,7 +201,7 @@ class PanoramaGenerator:
         wide = torch.cat([latent[..., -pad:], latent, latent[..., :pad]], -1) if pad else latent
         img = self.vae.decode(wide / self.vae.config.scaling_factor).sample
         crop = pad * self.vae_factor
-        img = img[..., crop:img.shape[-1] - crop] if crop else img
+        img = img[..., crop : img.shape[-1] - crop] if crop else img
         if not torch.isfinite(img).all():
             raise FloatingPointError("the decoder produced non-finite pixels")
         return ((img[0].permute(1, 2, 0).clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).numpy()
@@ -205,13 +223,21 @@ def _fingerprint(path: str | None) -> list | str | None:
 
 def cache_key(prompt: str, model: str, lora: str | None, cfg: GenerateConfig) -> str:
     """Content hash of what determines a panorama: prompt wording, model and LoRA files, seed, every setting."""
-    blob = json.dumps({"prompt": panorama_prompt(prompt), "model": _fingerprint(str(model)),
-                       "lora": _fingerprint(str(lora) if lora else None), "config": asdict(cfg)}, sort_keys=True)
+    blob = json.dumps(
+        {
+            "prompt": panorama_prompt(prompt),
+            "model": _fingerprint(str(model)),
+            "lora": _fingerprint(str(lora) if lora else None),
+            "config": asdict(cfg),
+        },
+        sort_keys=True,
+    )
     return hashlib.sha256(blob.encode()).hexdigest()[:20]
 
 
-def generate_cached(prompt: str, model: str, cfg: GenerateConfig, cache_dir, lora: str | None = None,
-                    progress: bool = False) -> Path:
+def generate_cached(
+    prompt: str, model: str, cfg: GenerateConfig, cache_dir, lora: str | None = None, progress: bool = False
+) -> Path:
     """The panorama PNG for these inputs, generated once and kept under ``cache_dir/<cache_key>.png``; the
     seed and all settings travel in ``cfg``."""
     from ..io import write_image

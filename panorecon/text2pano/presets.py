@@ -1,4 +1,5 @@
 """The eight prompts of the paper's Table 1, and how a prompt is worded for panorama generation."""
+
 from __future__ import annotations
 
 # Table 1 (scene names as panorecon's synthetic scenes use them)
@@ -10,9 +11,9 @@ PRESETS = {
     "beach": "Waves on the beach",
     "library": "Beijing city library",
     "exhibition-hall": "An indoor exhibition hall with multiple art installations, glass display cases, large posters "
-                       "on the wall, and spotlights",
+    "on the wall, and spotlights",
     "city-plaza": "An outdoor city plaza with a large central fountain, stone benches, tiled ground, and modern "
-                  "street lamps surrounded by open space",
+    "street lamps surrounded by open space",
 }
 
 # The panorama trigger phrase, prepended to every prompt (a panorama LoRA's own trigger word goes here too).

@@ -4,6 +4,7 @@ Columns are latent columns. Windows run left to right without wrapping (the last
 ends at the right edge); the seam block is one more window made of the rightmost and leftmost
 ``window // 2`` columns, so the two ends of the panorama are denoised together.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -12,8 +13,10 @@ import numpy as np
 def window_starts(latent_width: int, window: int, stride: int) -> list[int]:
     """First columns of the sliding windows: every column is covered, the last window ends at the edge."""
     if not (0 < window <= latent_width and 0 < stride <= window):
-        raise ValueError(f"window {window}, stride {stride} on a latent {latent_width} wide: expected "
-                         "0 < window <= width and 0 < stride <= window (no uncovered columns)")
+        raise ValueError(
+            f"window {window}, stride {stride} on a latent {latent_width} wide: expected "
+            "0 < window <= width and 0 < stride <= window (no uncovered columns)"
+        )
     starts = list(range(0, latent_width - window + 1, stride))
     if starts[-1] + window < latent_width:
         starts.append(latent_width - window)
@@ -24,7 +27,7 @@ def coverage(latent_width: int, window: int, stride: int) -> np.ndarray:
     """[latent_width] number of sliding windows covering each column."""
     c = np.zeros(latent_width)
     for s in window_starts(latent_width, window, stride):
-        c[s:s + window] += 1
+        c[s : s + window] += 1
     return c
 
 

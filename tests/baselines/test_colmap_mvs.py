@@ -1,4 +1,5 @@
 """COLMAP MVS: a clear 'n/a' without a CUDA build of pycolmap; a small fused cloud with one."""
+
 from __future__ import annotations
 
 import pycolmap

@@ -1,4 +1,5 @@
 """COLMAP SfM baselines on a synthetic scene from 3 panorama positions (512 x 256 ERP, 8 views of 128 px)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """moge-merge: MoGe's own merge_panorama_depth (dlr-moge) through the baselines plug-in."""
+
 import sys
 
 import numpy as np

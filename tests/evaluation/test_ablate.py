@@ -1,4 +1,5 @@
 """The ablation harness end to end on a tiny suite: outputs, caching across runs, the Dask engine."""
+
 import pandas as pd
 import pytest
 
@@ -37,8 +38,19 @@ def test_outputs_have_every_metric_with_time_and_memory(first_run):
     d, suite, frame = first_run
     csv = pd.read_csv(d / "out" / "results.csv")
     assert list(csv["source"]) == ["fibonacci", "random"]
-    for col in ("psnr_pl", "ssim_pl", "psnr_ho", "abs_rel", "chamfer", "sec_points", "sec_train", "sec_total",
-                "peak_mb", "commit", "version_torch"):
+    for col in (
+        "psnr_pl",
+        "ssim_pl",
+        "psnr_ho",
+        "abs_rel",
+        "chamfer",
+        "sec_points",
+        "sec_train",
+        "sec_total",
+        "peak_mb",
+        "commit",
+        "version_torch",
+    ):
         assert col in csv, col
     assert csv["psnr_pl"].notna().all() and (csv["peak_mb"] > 100).all() and (csv["sec_total"] > 0).all()
     assert csv.loc[0, "abs_rel"] < 0.2 and pd.isna(csv.loc[1, "abs_rel"])  # random points have no depth map
@@ -89,13 +101,18 @@ def test_dask_engine_gives_the_same_points(first_run, tmp_path):
 
 
 def test_bench_compare_fails_on_regressions_and_warns_on_slowdowns():
-    base = {"suite": {"fibonacci": {"abs_rel": 0.03, "psnr_pl": 21.0}},
-            "fusion": {"abs_rel": 0.01, "speedup_vs_reference": 3.0},
-            "rasterizer": {"speedup_cpu_vs_torch": 10.0, "max_abs_difference": {"image": 0, "grad_means": 0}}}
+    base = {
+        "suite": {"fibonacci": {"abs_rel": 0.03, "psnr_pl": 21.0}},
+        "fusion": {"abs_rel": 0.01, "speedup_vs_reference": 3.0},
+        "rasterizer": {"speedup_cpu_vs_torch": 10.0, "max_abs_difference": {"image": 0, "grad_means": 0}},
+    }
     same = {**base, "rasterizer": {**base["rasterizer"], "max_abs_difference": {"image": 1e-6, "grad_means": 1e-5}}}
     assert compare(same, base) == ([], [])
-    worse = {**same, "suite": {"fibonacci": {"abs_rel": 0.2, "psnr_pl": 18.0}},
-             "fusion": {"abs_rel": 0.01, "speedup_vs_reference": 1.0}}
+    worse = {
+        **same,
+        "suite": {"fibonacci": {"abs_rel": 0.2, "psnr_pl": 18.0}},
+        "fusion": {"abs_rel": 0.01, "speedup_vs_reference": 1.0},
+    }
     fails, warns = compare(worse, base)
     assert len(fails) == 2 and any("abs_rel" in f for f in fails) and any("psnr_pl" in f for f in fails)
     assert len(warns) == 1 and "fusion speedup" in warns[0]
@@ -110,8 +127,11 @@ def test_a_source_that_cannot_run_here_reads_na_and_the_suite_goes_on(tmp_path):
 
     if pycolmap.has_cuda:
         pytest.skip("colmap-mvs runs here")
-    (tmp_path / "s.toml").write_text(TINY.replace('source = ["fibonacci", "random"]', 'source = ["colmap-mvs", "random"]')
-                                     .replace("iters = 8", "train = false"))
+    (tmp_path / "s.toml").write_text(
+        TINY.replace('source = ["fibonacci", "random"]', 'source = ["colmap-mvs", "random"]').replace(
+            "iters = 8", "train = false"
+        )
+    )
     out = run_suite(load_suite(tmp_path / "s.toml"), tmp_path / "out", jobs=1, progress=False)
     assert out.loc[0, "unavailable_note"].startswith("n/a: needs a CUDA build of pycolmap")
     assert out.loc[1, "points"] == 100_000

@@ -1,4 +1,5 @@
 """The equal-input benchmark against MoGe's own merge (tiny ERP; the moge extra)."""
+
 import json
 
 import numpy as np

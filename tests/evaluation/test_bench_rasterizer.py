@@ -41,7 +41,13 @@ def test_max_difference_detects_a_wrong_backend(monkeypatch):
 @needs_cpu
 def test_cpu_stages_times_every_stage():
     out = bench_rasterizer.cpu_stages(size=32, n=300, repeats=2)
-    stages = ("projection_forward", "composite_forward", "composite_backward", "projection_backward",
-              "reference_projection_forward", "reference_projection_backward")
+    stages = (
+        "projection_forward",
+        "composite_forward",
+        "composite_backward",
+        "projection_backward",
+        "reference_projection_forward",
+        "reference_projection_backward",
+    )
     assert out["size"] == 32 and out["gaussians"] == 300
     assert all(math.isfinite(out[s + "_ms"]) and 0 < out[s + "_ms"] < 10_000 for s in stages)

@@ -1,4 +1,5 @@
 """report.html: self-contained, sortable, with plots and thumbnails; loaded in a real headless Chromium."""
+
 import re
 
 import numpy as np
@@ -20,10 +21,16 @@ def _png(path, colour, size=(64, 32)):
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     d = tmp_path_factory.mktemp("report")
-    frame = pd.DataFrame({"label": ["fibonacci", "random", "fibonacci", "random"],
-                          "scene": ["bedroom", "bedroom", "library", "library"],
-                          "psnr_pl": [20.0, 14.0, 22.0, 12.0], "psnr_ho": [18.0, 13.0, np.nan, np.nan],
-                          "chamfer": [0.03, 0.5, 0.04, 0.6], "sec_total": [10.0, 5.0, 12.0, 6.0]})
+    frame = pd.DataFrame(
+        {
+            "label": ["fibonacci", "random", "fibonacci", "random"],
+            "scene": ["bedroom", "bedroom", "library", "library"],
+            "psnr_pl": [20.0, 14.0, 22.0, 12.0],
+            "psnr_ho": [18.0, 13.0, np.nan, np.nan],
+            "chamfer": [0.03, 0.5, 0.04, 0.6],
+            "sec_total": [10.0, 5.0, 12.0, 6.0],
+        }
+    )
     _png(d / "out" / "pareto.png", (200, 30, 30), (300, 200))
     rng = np.random.default_rng(0)
     cloud = d / "cloud.ply"

@@ -1,4 +1,5 @@
 """Suites on real panoramas with true depth: depth keys, {root} and dataset scene patterns, a row end to end."""
+
 import json
 from pathlib import Path
 
@@ -50,7 +51,8 @@ def test_real_gt_suite_expands_the_root(root, monkeypatch):
 def test_depth_keys_and_a_row_end_to_end(root, tmp_path):
     (tmp_path / "s.toml").write_text(
         "[defaults]\nwidth = 32\nsource = 'fibonacci'\nteacher = 'sim:relative'\nviews = 12\ntrain = false\n"
-        "depth = '{root}/depth.png'\ndepth_scale = 0.001\n[grid]\nscene = ['{root}/pano.png']\n")
+        "depth = '{root}/depth.png'\ndepth_scale = 0.001\n[grid]\nscene = ['{root}/pano.png']\n"
+    )
     (row,) = load_suite(tmp_path / "s.toml", str(root)).rows
     assert row.depth == (f"{root}/depth.png", 0.001, "distance") and row.scene == f"{root}/pano.png"
     rec = run_points(StageCache(tmp_path / "cache"), row)
@@ -58,17 +60,23 @@ def test_depth_keys_and_a_row_end_to_end(root, tmp_path):
     # depth enters the key; a row without depth keeps the key it always had
     plain = Row(row.scene, row.width, row.source, row.teacher, row.views)
     assert plain.points_key() != row.points_key()
-    assert plain.points_key() == stage_key("points", {"scene": row.scene, "width": 32, "source": "fibonacci",
-                                                      "teacher": "sim:relative", "views": 12}, code=POINTS_CODE)
+    assert plain.points_key() == stage_key(
+        "points",
+        {"scene": row.scene, "width": 32, "source": "fibonacci", "teacher": "sim:relative", "views": 12},
+        code=POINTS_CODE,
+    )
     # a multi-view baseline needs a world to render panoramas around the centre: the row reads n/a
     colmap = Row(f"stanford2d3d:{root}/area_3/camera_{0:032x}_office_1_0", 32, "colmap-sfm", None, train=None)
     assert run_points(StageCache(tmp_path / "cache"), colmap)["unavailable"].startswith("n/a: scene")
 
 
-@pytest.mark.parametrize("text,match", [
-    ("[grid]\nscene = ['p.png']\nsource = ['random']\n[defaults]\ndepth_scale = 2.0", "without a depth file"),
-    ("[grid]\nscene = ['stanford2d3d:{root}/area_9/*']\nsource = ['random']", "no stanford2d3d panorama"),
-])
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("[grid]\nscene = ['p.png']\nsource = ['random']\n[defaults]\ndepth_scale = 2.0", "without a depth file"),
+        ("[grid]\nscene = ['stanford2d3d:{root}/area_9/*']\nsource = ['random']", "no stanford2d3d panorama"),
+    ],
+)
 def test_bad_dataset_suites(root, tmp_path, text, match):
     (tmp_path / "s.toml").write_text(text)
     with pytest.raises(PanoreconInputError, match=match):

@@ -1,4 +1,5 @@
 """Analytic scenes for fusion tests: a box room whose ray distance is known in closed form."""
+
 import numpy as np
 import pytest
 

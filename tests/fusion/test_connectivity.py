@@ -1,4 +1,5 @@
 """Every fusion reports which views its equations connect; views that do not connect are flagged loudly."""
+
 import logging
 
 import numpy as np
@@ -20,7 +21,8 @@ def scene_and_metric_file(tmp_path_factory):
 @pytest.mark.parametrize("teacher", ["sim:clean", "sim:relative", "sim:affine-disparity", "metric-file"])
 @pytest.mark.parametrize("source", ["fibonacci", "moge-merge"])
 def test_every_teacher_kind_reports_connectivity_and_two_fibonacci_views_are_flagged(
-        scene_and_metric_file, caplog, teacher, source):
+    scene_and_metric_file, caplog, teacher, source
+):
     scene, metric_file, larger = scene_and_metric_file
     teacher = metric_file if teacher == "metric-file" else teacher
     if source == "moge-merge":  # (at 64 px the affine alignment of its 12 small views leaves no valid depth)
@@ -36,19 +38,39 @@ def test_every_teacher_kind_reports_connectivity_and_two_fibonacci_views_are_fla
 
 
 def test_the_cli_prints_the_warning(tmp_path, capsys):
-    assert main(["points", "bedroom", "--source", "fibonacci", "--teacher", "sim:relative", "--views", "2",
-                 "--width", "64", "--out", str(tmp_path / "c.ply"), "--report", str(tmp_path / "r.json")]) == 0
+    assert (
+        main(
+            [
+                "points",
+                "bedroom",
+                "--source",
+                "fibonacci",
+                "--teacher",
+                "sim:relative",
+                "--views",
+                "2",
+                "--width",
+                "64",
+                "--out",
+                str(tmp_path / "c.ply"),
+                "--report",
+                str(tmp_path / "r.json"),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "WARNING: the views do not connect" in out
     assert "do not connect" in (tmp_path / "r.json").read_text()
 
 
 def test_result_rows_and_results_md_carry_the_flag(tmp_path):
+    import pandas as pd
+
     from panorecon.evaluation.ablate import result_row
     from panorecon.evaluation.report import write_results_md
     from panorecon.evaluation.suite import Suite
     from panorecon.pipeline import Row
-    import pandas as pd
 
     scene = load_scene("bedroom", 64)
     _, report = run_source(scene, "fibonacci", "sim:clean", views=2)

@@ -26,15 +26,19 @@ class TestAccuracy:
         rng = np.random.default_rng(1)
         views = make_views(fib20, 128, rng, noise=0.03)
         fused = depth_metrics(fuse_views(views, 64, 128).distance, box_truth(64))["abs_rel"]
-        per_view = np.median([depth_metrics(v.to_distance(), box_distance(v.camera.world_rays()))["abs_rel"] for v in views])
+        per_view = np.median(
+            [depth_metrics(v.to_distance(), box_distance(v.camera.world_rays()))["abs_rel"] for v in views]
+        )
         assert fused <= 0.7 * per_view, (fused, per_view)
 
     def test_overlapping_views_average_their_noise(self, box_truth):
         """The footprint-averaged bilinear warp averages per-pixel teacher noise that nearest-neighbour
         passes through (12 views of 90 degrees, 128 px, on a 256 x 128 ERP: 2 x 2 sub-rays per pixel)."""
         views = make_views(make_layout("icosahedron-vertices", fov_deg=90), 128, np.random.default_rng(5), noise=0.02)
-        err = {s: depth_metrics(fuse_views(views, 128, 256, FusionConfig(sampling=s)).distance,
-                                box_truth(128))["abs_rel"] for s in ("linear", "nearest")}
+        err = {
+            s: depth_metrics(fuse_views(views, 128, 256, FusionConfig(sampling=s)).distance, box_truth(128))["abs_rel"]
+            for s in ("linear", "nearest")
+        }
         assert err["linear"] <= 0.7 * err["nearest"], err
 
     def test_affine_disparity_views_are_aligned(self, fib20, box_truth):
@@ -51,7 +55,6 @@ class TestAccuracy:
         assert depth_metrics(r.distance, box_truth(64))["abs_rel"] < 1e-2
         dists, shifts, rep = align_affine_views(views)
         assert rep["pairs"] > 20 and len(dists) == 20
-
 
     def test_noisy_affine_views_keep_their_relative_scales(self, fib20, box_truth):
         """3 % noise on disparity: a least-squares solve with a_ref = 1 shrinks the other views' scales (errors
@@ -157,12 +160,27 @@ class TestNumericalStability:
         # every term is consistent with the truth up to each view's scale, so whatever their balance the map is
         # the truth plus filtered teacher noise: within 2.5x one view's mean error, 0.02 sqrt(2 / pi) = 0.016
         # (the 3^3 corner grid of these weights measured 0.014 to 0.030 here)
-        assert depth_metrics(r.distance, box_distance(erp_directions(16, 32)))["abs_rel"] < 2.5 * 0.02 * math.sqrt(2 / math.pi)
+        assert depth_metrics(r.distance, box_distance(erp_directions(16, 32)))["abs_rel"] < 2.5 * 0.02 * math.sqrt(
+            2 / math.pi
+        )
 
-    @pytest.mark.parametrize("field,value", [("w_data", 0.0), ("w_lap", -1.0), ("w_grad", float("nan")), ("preconditioner", "ilu"),
-                                             ("border_px", -1), ("border_px", 2.5), ("border_anchor", 0.0),
-                                             ("border_smooth", float("inf")), ("border_laplacian", -1.0),
-                                             ("sampling", "cubic"), ("supersample", 0), ("edge_log", 0.0)])
+    @pytest.mark.parametrize(
+        "field,value",
+        [
+            ("w_data", 0.0),
+            ("w_lap", -1.0),
+            ("w_grad", float("nan")),
+            ("preconditioner", "ilu"),
+            ("border_px", -1),
+            ("border_px", 2.5),
+            ("border_anchor", 0.0),
+            ("border_smooth", float("inf")),
+            ("border_laplacian", -1.0),
+            ("sampling", "cubic"),
+            ("supersample", 0),
+            ("edge_log", 0.0),
+        ],
+    )
     def test_bad_config_is_one_clear_error(self, field, value, fib20):
         with pytest.raises(ValueError, match=field):
             fuse_views(make_views(fib20, 16, np.random.default_rng(0)), 8, 16, FusionConfig(**{field: value}))
@@ -239,8 +257,9 @@ class TestSkyBorder:
     @given(st.floats(-6, 6), st.floats(-6, 6), st.integers(0, 8))
     def test_any_border_weights(self, la, lm, px):
         views = _flying_pixel_views(make_layout("fibonacci", 12), 32, np.random.default_rng(17))
-        r = fuse_views(views, 16, 32, FusionConfig(border_px=px, border_anchor=10.0**la, border_smooth=10.0**lm,
-                                                   maxiter=100))
+        r = fuse_views(
+            views, 16, 32, FusionConfig(border_px=px, border_anchor=10.0**la, border_smooth=10.0**lm, maxiter=100)
+        )
         assert r.seen.any() and np.isfinite(r.distance[r.seen]).all() and math.isfinite(r.report["residual"])
         if px == 0:  # no border pixel: the border weights must not touch the solve
             plain = fuse_views(views, 16, 32, FusionConfig(border_px=0, maxiter=100))
@@ -257,12 +276,24 @@ def test_jacobi_and_amg_agree(fib20):
 def test_stacked_operator_matches_its_parts():
     import scipy.sparse as sp
 
-    from panorecon.fusion.operators import difference_matrix, horizontal_pairs, laplacian_matrix, stacked_operator, vertical_pairs
+    from panorecon.fusion.operators import (
+        difference_matrix,
+        horizontal_pairs,
+        laplacian_matrix,
+        stacked_operator,
+        vertical_pairs,
+    )
 
     H, W = 5, 10
     B, rows = stacked_operator(H, W)
-    ref = sp.vstack([difference_matrix(*horizontal_pairs(H, W), H * W), difference_matrix(*vertical_pairs(H, W), H * W),
-                     laplacian_matrix(H, W), sp.identity(H * W)])
+    ref = sp.vstack(
+        [
+            difference_matrix(*horizontal_pairs(H, W), H * W),
+            difference_matrix(*vertical_pairs(H, W), H * W),
+            laplacian_matrix(H, W),
+            sp.identity(H * W),
+        ]
+    )
     assert abs(B - ref).max() == 0
     np.testing.assert_array_equal(rows, np.repeat(np.arange(B.shape[0]), np.diff(B.indptr)))
 
@@ -309,8 +340,9 @@ class TestWarp:
             return np.nan
         x0, y0 = math.floor(x), math.floor(y)
         fx, fy = x - x0, y - y0
-        taps = {(i, j): (img[i, j] if 0 <= i < h and 0 <= j < w else np.nan)
-                for i in (y0, y0 + 1) for j in (x0, x0 + 1)}
+        taps = {
+            (i, j): (img[i, j] if 0 <= i < h and 0 <= j < w else np.nan) for i in (y0, y0 + 1) for j in (x0, x0 + 1)
+        }
         near = taps[(y0 + (fy >= 0.5), x0 + (fx >= 0.5))]
         num = den = 0.0
         for (i, j), v in taps.items():
@@ -351,7 +383,7 @@ class TestWarp:
         for p, value in zip(obs.index, obs.log_distance):
             r, c = divmod(int(p), W)
             reads = []
-            for rays in fine[r * k:(r + 1) * k, c * k:(c + 1) * k].reshape(-1, 3):
+            for rays in fine[r * k : (r + 1) * k, c * k : (c + 1) * k].reshape(-1, 3):
                 loc = rays @ cam.rotation_c2w
                 if loc[2] > 1e-6:
                     x = cam.K[0, 0] * loc[0] / loc[2] + cam.K[0, 2] - 0.5
@@ -367,8 +399,13 @@ class TestWarp:
 
         cam = centred_camera(np.array([1.0, 0.0, 0.0]), 64, 90.0)
         dist = np.where(np.arange(64)[None, :] < 31, 1.0, 4.0) * np.ones((64, 64))
-        obs = warp_to_erp(ViewDepth(cam, dist.astype(np.float32), "distance", np.ones((64, 64), bool)), 64, 128,
-                          sampling="linear", supersample=3)
+        obs = warp_to_erp(
+            ViewDepth(cam, dist.astype(np.float32), "distance", np.ones((64, 64), bool)),
+            64,
+            128,
+            sampling="linear",
+            supersample=3,
+        )
         d = np.exp(obs.log_distance)
         assert np.minimum(np.abs(d - 1), np.abs(d - 4)).max() < 1e-9
 

@@ -1,4 +1,5 @@
 """The matrix-free normal operator against the assembled sparse matrix it replaces (the slow reference)."""
+
 import numpy as np
 import pytest
 import scipy.sparse as sp

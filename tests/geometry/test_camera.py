@@ -75,7 +75,9 @@ def test_world_rays_through_centre_and_corners():
     assert centre[0] > 0.999
     # the left/right image edges are 45 degrees off axis at 90 deg FOV (pixel centres half a pixel in)
     edge_angle = math.degrees(math.atan((32 - 0.5) / 32))
-    assert math.degrees(math.acos(rays[32, 0] @ [1, 0, 0] / np.linalg.norm(rays[32, 0]))) == pytest.approx(edge_angle, abs=0.5)
+    assert math.degrees(math.acos(rays[32, 0] @ [1, 0, 0] / np.linalg.norm(rays[32, 0]))) == pytest.approx(
+        edge_angle, abs=0.5
+    )
     # right of the image is -y in the world when looking along +x
     assert rays[32, -1, 1] < 0
 

@@ -76,8 +76,16 @@ def test_latlong_and_cube_shapes():
 
 
 @pytest.mark.parametrize(
-    "name,n", [("fibonacci", 12), ("fibonacci", 20), ("fibonacci", 40), ("icosahedral", None),
-               ("icosahedron-vertices", None), ("latlong", None), ("cube", None)]
+    "name,n",
+    [
+        ("fibonacci", 12),
+        ("fibonacci", 20),
+        ("fibonacci", 40),
+        ("icosahedral", None),
+        ("icosahedron-vertices", None),
+        ("latlong", None),
+        ("cube", None),
+    ],
 )
 def test_default_fov_covers_the_sphere(name, n):
     layout = make_layout(name, n)

@@ -1,5 +1,3 @@
-
-
 def test_subset_keeps_per_point_scalars_aligned():
     import numpy as np
 
@@ -18,8 +16,12 @@ def _cloud(n=50, extras=True):
     from panorecon.geometry import PointCloud
 
     rng = np.random.default_rng(0)
-    return PointCloud(rng.normal(size=(n, 3)), rng.random((n, 3)), rng.normal(size=(n, 3)) if extras else None,
-                      np.arange(n) % 7 if extras else None)
+    return PointCloud(
+        rng.normal(size=(n, 3)),
+        rng.random((n, 3)),
+        rng.normal(size=(n, 3)) if extras else None,
+        np.arange(n) % 7 if extras else None,
+    )
 
 
 def test_ply_round_trip_in_numpy_and_through_open3d(tmp_path):

@@ -1,7 +1,9 @@
 """PLY reading is checked: header, size against the vertex count, what Open3D read, finite positions."""
+
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from panorecon.geometry import PointCloud
 from panorecon.geometry.pointcloud import check_ply_header
@@ -38,11 +40,16 @@ def test_extra_bytes_nan_positions_and_non_ply_are_refused(tmp_path, ply_bytes, 
     PointCloud(np.ones((4, 3)), np.zeros((4, 3))).save_ply(tmp_path / "nan.ply")
     raw = bytearray((tmp_path / "nan.ply").read_bytes())
     body = raw.index(b"end_header\n") + len(b"end_header\n")
-    raw[body:body + 4] = np.float32(np.nan).tobytes()
+    raw[body : body + 4] = np.float32(np.nan).tobytes()
     (tmp_path / "nan.ply").write_bytes(bytes(raw))
     capfd.readouterr()
-    for name, needle in [("long.ply", "expected"), ("text.ply", "not a PLY"), ("zero.ply", "no vertices"),
-                         ("nan.ply", "NaN or Inf"), ("missing.ply", "no such file")]:
+    for name, needle in [
+        ("long.ply", "expected"),
+        ("text.ply", "not a PLY"),
+        ("zero.ply", "no vertices"),
+        ("nan.ply", "NaN or Inf"),
+        ("missing.ply", "no such file"),
+    ]:
         with pytest.raises(PanoreconInputError, match=needle) as e:
             PointCloud.load_ply(tmp_path / name)
         assert name in str(e.value)
@@ -50,17 +57,24 @@ def test_extra_bytes_nan_positions_and_non_ply_are_refused(tmp_path, ply_bytes, 
 
 
 def test_an_ascii_ply_from_elsewhere_is_read(tmp_path):
-    (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
-                                    "property float z\nend_header\n0 0 1\n1 2 3\n")
+    (tmp_path / "a.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+        "property float z\nend_header\n0 0 1\n1 2 3\n"
+    )
     pc = PointCloud.load_ply(tmp_path / "a.ply")
     np.testing.assert_allclose(pc.xyz, [[0, 0, 1], [1, 2, 3]])
 
 
-@pytest.mark.parametrize("text, needle", [
-    ("element vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 1\n1 2 3\n",
-     "2 data lines"),
-    ("element vertex 2\nproperty float x\nend_header\n1\n2\n", "no x, y, z"),
-])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        (
+            "element vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 1\n1 2 3\n",
+            "2 data lines",
+        ),
+        ("element vertex 2\nproperty float x\nend_header\n1\n2\n", "no x, y, z"),
+    ],
+)
 def test_a_short_or_positionless_ascii_ply_is_refused(tmp_path, text, needle):
     (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\n" + text)
     with pytest.raises(PanoreconInputError, match=needle):

@@ -31,8 +31,16 @@ class TestSeamAndPoles:
         np.testing.assert_array_equal(p[1, 2:10], np.roll(e[0], -4))
         np.testing.assert_array_equal(p[2:6, 0:2], e[:, -2:])
 
-    @pytest.mark.parametrize("lon,lat", [(math.pi, 0.1), (-math.pi + 1e-4, -0.3), (0.5, math.pi / 2 - 1e-3),
-                                         (2.0, -math.pi / 2 + 1e-3), (math.pi - 1e-3, 1.4)])
+    @pytest.mark.parametrize(
+        "lon,lat",
+        [
+            (math.pi, 0.1),
+            (-math.pi + 1e-4, -0.3),
+            (0.5, math.pi / 2 - 1e-3),
+            (2.0, -math.pi / 2 + 1e-3),
+            (math.pi - 1e-3, 1.4),
+        ],
+    )
     def test_samples_near_seam_and_poles_match_the_function(self, lon, lat):
         h = 64
         d = lonlat_to_direction(np.array([[lon]]), np.array([[lat]]))
@@ -78,7 +86,15 @@ class TestAgainstPy360convert:
     def test_e2p_agrees_on_real_panoramas(self, real_data, fname):
         py360convert = pytest.importorskip("py360convert")
         img = cv2.imread(str(real_data / fname))[..., ::-1].astype(np.float32) / 255
-        for u, v, fov in [(0, 0, 90), (30, 20, 90), (-100, -40, 60), (179, 0, 90), (-170, 60, 100), (45, 85, 90), (0, -80, 75)]:
+        for u, v, fov in [
+            (0, 0, 90),
+            (30, 20, 90),
+            (-100, -40, 60),
+            (179, 0, 90),
+            (-170, 60, 100),
+            (45, 85, 90),
+            (0, -80, 75),
+        ]:
             ref = py360convert.e2p(img, fov_deg=(fov, fov), u_deg=u, v_deg=v, out_hw=(256, 256), mode="bilinear")
             cam = centred_camera(lonlat_to_direction(np.radians(u), np.radians(v)), 256, fov)
             K = cam.K.copy()

@@ -31,7 +31,9 @@ class TestConvention:
         assert d[32, 80, 1] < 0 and d[32, 48, 1] > 0
 
     def test_right_handed_z_up(self):
-        x, y, z = (lonlat_to_direction(np.float64(a), np.float64(b)) for a, b in [(0, 0), (-math.pi / 2, 0), (0, math.pi / 2)])
+        x, y, z = (
+            lonlat_to_direction(np.float64(a), np.float64(b)) for a, b in [(0, 0), (-math.pi / 2, 0), (0, math.pi / 2)]
+        )
         np.testing.assert_allclose(np.cross(x, y), z, atol=1e-12)
 
     def test_unit_norm(self, float_dtype):

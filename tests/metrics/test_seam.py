@@ -16,7 +16,9 @@ def test_a_rolled_real_looking_image_moves_its_seam_inside():
     rng = np.random.default_rng(0)
     smooth = np.cumsum(rng.normal(size=(32, 200, 3)), axis=1)  # random walk along columns: no periodicity
     assert seam_discontinuity(smooth) > 3
-    assert seam_discontinuity(np.roll(smooth, 100, axis=1)) < 2  # the wrap now joins two neighbouring columns of the walk
+    assert (
+        seam_discontinuity(np.roll(smooth, 100, axis=1)) < 2
+    )  # the wrap now joins two neighbouring columns of the walk
 
 
 def test_too_narrow_is_refused():

@@ -50,8 +50,11 @@ def test_finished_stage_records_content_hashes_and_a_corrupt_entry_is_recomputed
     assert len(PointCloud.load_ply(folder / "cloud.ply")) == first["points"]
     # a cut done.json is a warning naming it, not a JSONDecodeError
     text = (folder / "done.json").read_text()
-    for broken in (text[: len(text) // 2], json.dumps({"stage": "points", "key": "other", "files": {}}),
-                   json.dumps({k: v for k, v in json.loads(text).items() if k != "files"})):
+    for broken in (
+        text[: len(text) // 2],
+        json.dumps({"stage": "points", "key": "other", "files": {}}),
+        json.dumps({k: v for k, v in json.loads(text).items() if k != "files"}),
+    ):
         (folder / "done.json").write_text(broken)
         caplog.clear()
         with caplog.at_level("WARNING", logger="panorecon.cache"):

@@ -1,4 +1,5 @@
 """Dataset adapters on fixtures written in each dataset's exact layout from a synthetic scene (truth known)."""
+
 import json
 
 import cv2
@@ -41,8 +42,9 @@ def write_stanford2d3d(root, renders):
         write_image(base / "rgb" / f"{pano}_frame_equirectangular_domain_rgb.png", rgb)
         _png16(base / "depth" / f"{pano}_frame_equirectangular_domain_depth.png", dist, 512, missing=65535)
         (base / "pose").mkdir(parents=True, exist_ok=True)
-        (base / "pose" / f"{pano}_frame_equirectangular_domain_pose.json").write_text(json.dumps(
-            {"camera_location": pos.tolist(), "camera_uuid": f"{i:032x}", "room": "office_1_area_1"}))
+        (base / "pose" / f"{pano}_frame_equirectangular_domain_pose.json").write_text(
+            json.dumps({"camera_location": pos.tolist(), "camera_uuid": f"{i:032x}", "room": "office_1_area_1"})
+        )
         keys.append(f"area_1/{pano}")
     return [(f"stanford2d3d:{root}/{k}", 1 / 512, 1e-9) for k in keys]
 
@@ -118,8 +120,10 @@ def test_missing_pose_file(tmp_path, renders):
         load_scene(name)
 
 
-@pytest.mark.parametrize("name,needle", [("stanford2d3d:area_1", "expected Stanford2D3D"),
-                                         ("structured3d:/no/such/root/scene_0/1", "is not a folder")])
+@pytest.mark.parametrize(
+    "name,needle",
+    [("stanford2d3d:area_1", "expected Stanford2D3D"), ("structured3d:/no/such/root/scene_0/1", "is not a folder")],
+)
 def test_malformed_dataset_names(name, needle):
     with pytest.raises(PanoreconInputError, match=needle):
         load_scene(name)

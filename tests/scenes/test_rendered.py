@@ -1,4 +1,5 @@
 """A `panorecon render` folder loaded back as a scene with its truth, and scenes without Open3D."""
+
 import json
 import os
 import subprocess
@@ -31,8 +32,10 @@ runpy.run_module("panorecon.cli", run_name="__main__")
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     out = tmp_path_factory.mktemp("render") / "bedroom"
-    assert main(["render", "bedroom", "--width", "128", "--out", str(out), "--heldout", "3", "--heldout-res", "16",
-                 "24"]) == 0
+    assert (
+        main(["render", "bedroom", "--width", "128", "--out", str(out), "--heldout", "3", "--heldout-res", "16", "24"])
+        == 0
+    )
     return out
 
 
@@ -80,23 +83,48 @@ def test_a_broken_folder_is_one_clear_error(tmp_path, rendered):
 
 def _run_without_open3d(args, cwd):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([sys.executable, "-c", BLOCK_OPEN3D, *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-c", BLOCK_OPEN3D, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_real_panorama_and_rendered_folder_train_without_open3d(rendered, tmp_path):
     """A real panorama with a file: teacher, and a rendered synthetic folder (truth, held-out views, sim
     teacher), each run points -> train with every import of open3d failing."""
-    common = ["--source", "fibonacci", "--views", "6", "--iters", "4", "--res", "16", "--labels", "4",
-              "--no-progress", "--device", "cpu"]
-    real = _run_without_open3d(["train", str(rendered / "pano.png"), "--teacher", f"file:{rendered / 'distance.npy'}",
-                                "--out", str(tmp_path / "real"), *common], tmp_path)
+    common = [
+        "--source",
+        "fibonacci",
+        "--views",
+        "6",
+        "--iters",
+        "4",
+        "--res",
+        "16",
+        "--labels",
+        "4",
+        "--no-progress",
+        "--device",
+        "cpu",
+    ]
+    real = _run_without_open3d(
+        [
+            "train",
+            str(rendered / "pano.png"),
+            "--teacher",
+            f"file:{rendered / 'distance.npy'}",
+            "--out",
+            str(tmp_path / "real"),
+            *common,
+        ],
+        tmp_path,
+    )
     assert real.returncode == 0, real.stderr[-2000:]
     assert "held-out PSNR n/a" in real.stdout
     folder = tmp_path / "bedroom"  # train holds out 8 views (its default): record those
     assert main(["render", "bedroom", "--width", "128", "--out", str(folder), "--heldout-res", "16"]) == 0
-    syn = _run_without_open3d(["train", str(folder), "--teacher", "sim:clean", "--out", str(tmp_path / "syn"),
-                               *common], tmp_path)
+    syn = _run_without_open3d(
+        ["train", str(folder), "--teacher", "sim:clean", "--out", str(tmp_path / "syn"), *common], tmp_path
+    )
     assert syn.returncode == 0, syn.stderr[-2000:]
     m = json.loads((tmp_path / "syn" / "metrics.json").read_text())
     assert isinstance(m["held-out"]["psnr"], float) and m["device"] == "cpu"

@@ -1,7 +1,15 @@
 import numpy as np
 import pytest
 
-from panorecon.geometry import centred_camera, fibonacci_directions, look_at_rotation, sample_erp, viewmat_from_pose, intrinsics_from_fov, PinholeCamera
+from panorecon.geometry import (
+    PinholeCamera,
+    centred_camera,
+    fibonacci_directions,
+    intrinsics_from_fov,
+    look_at_rotation,
+    sample_erp,
+    viewmat_from_pose,
+)
 from panorecon.scenes import list_scenes, load_scene
 from panorecon.scenes.synthetic import EYE_HEIGHT, SyntheticWorld, build_scene, world
 

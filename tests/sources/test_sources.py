@@ -3,8 +3,7 @@ import pytest
 
 from panorecon.io import PanoreconInputError
 from panorecon.scenes import load_scene
-from panorecon.sources import get_source, list_sources, run_source
-from panorecon.sources import registry
+from panorecon.sources import get_source, list_sources, registry, run_source
 
 ALL = {"fibonacci", "icosahedral", "latlong", "cube", "moge-merge", "erp-direct", "random"}
 
@@ -29,13 +28,19 @@ def test_peer_methods_are_plugins_of_the_baselines_package(tree_entry_points):
     import panorecon
 
     assert {k: v.split(".")[0] for k, v in tree_entry_points.items()} == dict.fromkeys(
-        ("moge-merge", "erp-direct", "colmap-sfm", "colmap-mvs"), "baselines")
+        ("moge-merge", "erp-direct", "colmap-sfm", "colmap-mvs"), "baselines"
+    )
     for name in ("moge-merge", "erp-direct"):
         assert get_source(name).fn.__module__.startswith("baselines."), name
     for path in Path(panorecon.__file__).parent.rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
-                [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else []
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom) and node.level == 0
+                else []
+            )
             assert not any(n.split(".")[0] == "baselines" for n in names), f"{path} imports the baselines package"
 
 

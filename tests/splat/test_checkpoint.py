@@ -1,4 +1,5 @@
 """The trainer's checkpoint: weights_only, input keys, corrupt files set aside (unit level, no training)."""
+
 import logging
 import pickle
 
@@ -20,9 +21,14 @@ def _state(n=5, iteration=10):
     opt = torch.optim.Adam(list(params.values()), lr=1e-3)
     sum(p.sum() for p in params.values()).backward()
     opt.step()
-    return {"iteration": iteration, "history": [{"iteration": 5, "psnr": 20.0, "gaussians": n}],
-            "optimizer": opt.state_dict(), "strategy": {"grad_sum": torch.zeros(n), "count": torch.zeros(n)},
-            "rng": torch.get_rng_state(), "model": {k: p.detach() for k, p in params.items()}}
+    return {
+        "iteration": iteration,
+        "history": [{"iteration": 5, "psnr": 20.0, "gaussians": n}],
+        "optimizer": opt.state_dict(),
+        "strategy": {"grad_sum": torch.zeros(n), "count": torch.zeros(n)},
+        "rng": torch.get_rng_state(),
+        "model": {k: p.detach() for k, p in params.items()},
+    }
 
 
 @pytest.fixture
@@ -38,8 +44,17 @@ def test_round_trip_with_weights_only(tmp_path, inputs):
     assert load_checkpoint(tmp_path / "none.pt", inputs, iters=100) is None
 
 
-@pytest.mark.parametrize("key, value", [("scene", "beach"), ("width", 128), ("config", "other"), ("cloud", "0" * 16),
-                                        ("source", "random"), ("teacher", "sim:relative")])
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("scene", "beach"),
+        ("width", 128),
+        ("config", "other"),
+        ("cloud", "0" * 16),
+        ("source", "random"),
+        ("teacher", "sim:relative"),
+    ],
+)
 def test_a_checkpoint_for_other_inputs_is_refused_naming_what_differs(tmp_path, inputs, key, value):
     save_checkpoint(tmp_path / "ckpt.pt", {**inputs, key: value}, _state())
     with pytest.raises(PanoreconInputError, match=f"ckpt.pt was written for a different run \\({key}: "):

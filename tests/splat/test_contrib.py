@@ -1,5 +1,6 @@
 """Per-Gaussian contributions for backends without them (``rasterize/contrib.py``), on the CPU: from the blended
 pairs and by the ones-channel gradient, against the ``cpu`` backend's and the reference's own contributions."""
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -16,23 +17,34 @@ W, H = 40, 28
 
 def scene(n, seed, dtype=torch.float32):
     g = torch.Generator().manual_seed(seed)
-    means = torch.stack([torch.rand(n, generator=g) * 4 + 0.5, torch.rand(n, generator=g) * 3 - 1.5,
-                         torch.rand(n, generator=g) * 2 - 1], -1)
+    means = torch.stack(
+        [
+            torch.rand(n, generator=g) * 4 + 0.5,
+            torch.rand(n, generator=g) * 3 - 1.5,
+            torch.rand(n, generator=g) * 2 - 1,
+        ],
+        -1,
+    )
     quats = torch.randn(n, 4, generator=g)
     scales = torch.rand(n, 3, generator=g) * 0.2 + 0.02
     opac = torch.rand(n, generator=g) * 0.98 + 0.01
     opac[:3] = 1.0  # alpha clamped at 0.99: deep occlusion, the T stop is reached
     rgb = torch.rand(n, 3, generator=g)
     Ks = torch.tensor(intrinsics_from_fov(W, H, 70.0))[None].repeat(2, 1, 1)
-    Vs = torch.stack([torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0])),
-                      torch.tensor(look_at_viewmat([0.2, -0.3, 0.1], [1, 0.4, -0.2]))])
+    Vs = torch.stack(
+        [
+            torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0])),
+            torch.tensor(look_at_viewmat([0.2, -0.3, 0.1], [1, 0.4, -0.2])),
+        ]
+    )
     return [t.to(dtype) for t in (means, quats, scales, opac, rgb, Vs, Ks)]
 
 
 def reference_contrib(m, q, s, o, rgb, Vs, Ks):
     means2d, conics, depths, radii = project_gaussians(m, q, s, Vs, Ks, W, H)
-    *_, contrib = rasterize_tiles(means2d, conics, rgb[None].expand(2, -1, -1), o, depths, radii, W, H,
-                                  return_contrib=True)
+    *_, contrib = rasterize_tiles(
+        means2d, conics, rgb[None].expand(2, -1, -1), o, depths, radii, W, H, return_contrib=True
+    )
     return (means2d, conics, depths, radii), contrib
 
 
@@ -71,7 +83,8 @@ def test_pairs_and_gradient_equal_the_cpu_backends_contributions(seed):
     # the ones channel: the gradient of its pixel sum w.r.t. a per-Gaussian colour of ones is sum alpha T,
     # here through the torch reference's autograd (any differentiable backend would do)
     by_grad = weight_sum_by_gradient(
-        lambda ones: rasterize(m, q, s, o, ones, Vs, Ks, W, H, backend="torch")[0], 2, len(m))
+        lambda ones: rasterize(m, q, s, o, ones, Vs, Ks, W, H, backend="torch")[0], 2, len(m)
+    )
     torch.testing.assert_close(by_grad, meta["weight_sum"], atol=2e-5, rtol=1e-4)
 
 
@@ -82,6 +95,5 @@ def test_gradient_weight_sum_matches_cpu_for_any_scene(seed, n, opacity):
     m, q, s, o, rgb, Vs, Ks = scene(n, seed)
     o = torch.full_like(o, opacity)
     _, _, _, meta = rasterize(m, q, s, o, rgb, Vs, Ks, W, H, backend="cpu", return_contrib=True)
-    by_grad = weight_sum_by_gradient(
-        lambda ones: rasterize(m, q, s, o, ones, Vs, Ks, W, H, backend="torch")[0], 2, n)
+    by_grad = weight_sum_by_gradient(lambda ones: rasterize(m, q, s, o, ones, Vs, Ks, W, H, backend="torch")[0], 2, n)
     torch.testing.assert_close(by_grad, meta["weight_sum"], atol=2e-5, rtol=1e-4)

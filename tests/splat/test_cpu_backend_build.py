@@ -1,5 +1,6 @@
 """Loading the C++ backend: a build interrupted by a killed process must not make every later load wait forever
 on the lock file torch leaves behind."""
+
 import subprocess
 import sys
 import textwrap
@@ -32,14 +33,23 @@ def test_a_build_in_progress_in_another_process_is_waited_for_not_broken(tmp_pat
     """While another live process holds the build lock, its torch ``lock`` file is left alone: load waits."""
     monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))
     directory = cpu_backend.build_dir()
-    holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(f"""
         import fcntl, pathlib, sys
         d = pathlib.Path({str(directory)!r})
         h = open(d / "build.flock", "w"); fcntl.flock(h, fcntl.LOCK_EX)
         (d / "lock").touch(); print("holding", flush=True)
         sys.stdin.readline()            # build 'runs' until the test says stop
         (d / "lock").unlink(); fcntl.flock(h, fcntl.LOCK_UN)
-        """)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        """),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "holding"
         monkeypatch.setattr(cpu_backend, "_module", None)
@@ -56,11 +66,13 @@ def test_a_build_in_progress_in_another_process_is_waited_for_not_broken(tmp_pat
         loader.join(timeout=1.0)
         assert loader.is_alive() and order == [] and (directory / "lock").exists()
         order.append("released")
-        holder.stdin.write("\n"); holder.stdin.flush()
+        holder.stdin.write("\n")
+        holder.stdin.flush()
         loader.join(timeout=30)
         assert order == ["released", "load", "module"]
     finally:
-        holder.kill(); holder.wait()
+        holder.kill()
+        holder.wait()
 
 
 def test_each_checkout_builds_in_its_own_directory(tmp_path, monkeypatch):

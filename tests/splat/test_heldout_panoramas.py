@@ -1,4 +1,5 @@
 """Held-out views from a dataset space's other panoramas, checked against the synthetic world they came from."""
+
 import json
 
 import cv2
@@ -58,7 +59,6 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     from panorecon.splat.trainer import TrainConfig, train
 
     _, scene = space
-    m = train(scene, scene.point_cloud(), TrainConfig(iters=10, labels=6, res=32, heldout=3), tmp_path,
-              progress=False)
+    m = train(scene, scene.point_cloud(), TrainConfig(iters=10, labels=6, res=32, heldout=3), tmp_path, progress=False)
     held = m["held-out"]
     assert isinstance(held["psnr"], float) and held["ssim"].startswith("n/a") and 0 < held["covisible_fraction"] < 1

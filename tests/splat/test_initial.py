@@ -2,7 +2,8 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from panorecon.geometry import PointCloud, erp_directions
 from panorecon.scenes import load_scene
@@ -21,8 +22,12 @@ def test_sky_environment_keeps_the_sky_and_fills_the_rest_with_the_nearest_sky(b
     assert env.shape == rgb.shape and env.dtype == np.float32 and beach.sky.any() and not beach.sky.all()
     np.testing.assert_array_equal(env[beach.sky], rgb[beach.sky])
     # the first ground pixel under a sky column takes the colour of the sky pixel just above it
-    r, c = next((r, c) for c in range(beach.width) for r in range(1, beach.height)
-                if beach.sky[r - 1, c] and not beach.sky[r, c] and beach.sky[r - 1, max(c - 1, 0):c + 2].all())
+    r, c = next(
+        (r, c)
+        for c in range(beach.width)
+        for r in range(1, beach.height)
+        if beach.sky[r - 1, c] and not beach.sky[r, c] and beach.sky[r - 1, max(c - 1, 0) : c + 2].all()
+    )
     np.testing.assert_allclose(env[r, c], rgb[r - 1, c])
     assert sky_environment(load_scene("bedroom", 64)) is None  # indoors: nothing behind the Gaussians
 

@@ -13,8 +13,9 @@ def bedroom():
 
 def test_pseudo_labels_are_views_of_the_panorama_with_teacher_depth(bedroom):
     teacher = get_teacher("sim:relative")
-    labels = make_pseudo_labels(bedroom, 120, 32, 60.0,
-                                depth_fn=lambda cams: [v.depth for v in teacher.predict_views(bedroom, cams)])
+    labels = make_pseudo_labels(
+        bedroom, 120, 32, 60.0, depth_fn=lambda cams: [v.depth for v in teacher.predict_views(bedroom, cams)]
+    )
     assert len(labels) == 120
     fw = np.stack([lv.camera.forward for lv in labels])
     assert np.allclose(np.linalg.norm(fw, axis=1), 1) and np.abs(fw.mean(0)).max() < 0.05  # spread over the sphere

@@ -1,11 +1,13 @@
 """The trainer's PSNR and SSIM equal scikit-image's (the chosen stack's reference): SSIM with
 gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1, on random and real images."""
+
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from panorecon.io import read_image
@@ -16,8 +18,9 @@ LPIPS_IMAGES = Path(__file__).resolve().parents[1] / "data" / "lpips"
 
 
 def _skimage(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    s = structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1,
-                              channel_axis=-1)
+    s = structural_similarity(
+        a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=-1
+    )
     return peak_signal_noise_ratio(a, b, data_range=1), s
 
 

@@ -58,7 +58,9 @@ class TestPly:
         V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
 
         def render(g):
-            return rasterize(g.means, g.quats, g.scales(), g.opacities(), g.sh(), V, K, 32, 32, sh_degree=3, backend="torch")[0]
+            return rasterize(
+                g.means, g.quats, g.scales(), g.opacities(), g.sh(), V, K, 32, 32, sh_degree=3, backend="torch"
+            )[0]
 
         torch.testing.assert_close(render(m), render(m2))
 
@@ -81,7 +83,7 @@ def ssim_slow(a, b, size=11, sigma=1.5):
     for ch in range(C):
         for i in range(H - size + 1):
             for j in range(W - size + 1):
-                x, y = a[i:i + size, j:j + size, ch], b[i:i + size, j:j + size, ch]
+                x, y = a[i : i + size, j : j + size, ch], b[i : i + size, j : j + size, ch]
                 mx, my = (w * x).sum(), (w * y).sum()
                 sxx, syy, sxy = (w * x * x).sum() - mx**2, (w * y * y).sum() - my**2, (w * x * y).sum() - mx * my
                 vals.append(((2 * mx * my + 1e-4) * (2 * sxy + 9e-4)) / ((mx**2 + my**2 + 1e-4) * (sxx + syy + 9e-4)))

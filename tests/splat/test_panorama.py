@@ -1,4 +1,5 @@
 """The cube-face panorama render against one exact-ray camera per ERP pixel."""
+
 import numpy as np
 import pytest
 import torch
@@ -14,9 +15,14 @@ def shell_model(n=1500, radius=2.0, scale=0.12) -> GaussianModel:
     mix-up or flipped axis shows)."""
     d = fibonacci_directions(n)
     rgb = torch.tensor(0.5 + 0.45 * d, dtype=torch.float32)
-    return GaussianModel(torch.tensor(d * radius, dtype=torch.float32), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                         torch.full((n, 3), float(np.log(scale))), torch.full((n,), 4.0),
-                         ((rgb - 0.5) / C0)[:, None, :], torch.zeros(n, 0, 3))
+    return GaussianModel(
+        torch.tensor(d * radius, dtype=torch.float32),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), float(np.log(scale))),
+        torch.full((n,), 4.0),
+        ((rgb - 0.5) / C0)[:, None, :],
+        torch.zeros(n, 0, 3),
+    )
 
 
 def test_panorama_matches_per_pixel_rays():

@@ -1,5 +1,6 @@
 """The C++ projection (``cpu_backend.project``) against the PyTorch reference ``project_gaussians``: every output
 and the gradients of means, quats and scales, in float64 (to rounding) and float32 (to a stated tolerance)."""
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -15,8 +16,12 @@ def cameras(width, height, dtype):
     Ks = torch.tensor(intrinsics_from_fov(width, height, 70.0), dtype=dtype)[None].repeat(3, 1, 1)
     Ks[2, 0, 0] *= 40.0  # a telephoto camera (about 2° across): most Gaussians fall outside its image
     Ks[2, 1, 1] *= 40.0
-    Vs = torch.stack([torch.tensor(look_at_viewmat(o, t), dtype=dtype) for o, t in
-                      (([0, 0, 0], [1, 0, 0]), ([0.2, -0.3, 0.1], [1, 0.4, -0.2]), ([0, 0, 0], [1, 0.1, 0]))])
+    Vs = torch.stack(
+        [
+            torch.tensor(look_at_viewmat(o, t), dtype=dtype)
+            for o, t in (([0, 0, 0], [1, 0, 0]), ([0.2, -0.3, 0.1], [1, 0.4, -0.2]), ([0, 0, 0], [1, 0.1, 0]))
+        ]
+    )
     return Vs, Ks
 
 
@@ -24,17 +29,23 @@ def scene(n, seed, dtype):
     """n Gaussians whose first seven (as far as n reaches) are the extreme cases named below."""
     n_all, n = max(n, 7), n
     g = torch.Generator().manual_seed(seed)
-    means = torch.stack([torch.rand(n_all, generator=g) * 4 - 0.5, torch.rand(n_all, generator=g) * 3 - 1.5,
-                         torch.rand(n_all, generator=g) * 2 - 1], -1).to(dtype)
+    means = torch.stack(
+        [
+            torch.rand(n_all, generator=g) * 4 - 0.5,
+            torch.rand(n_all, generator=g) * 3 - 1.5,
+            torch.rand(n_all, generator=g) * 2 - 1,
+        ],
+        -1,
+    ).to(dtype)
     quats = torch.randn(n_all, 4, generator=g).to(dtype)
     scales = (torch.rand(n_all, 3, generator=g) * 0.3 + 1e-3).to(dtype)
-    means[0] = torch.tensor([0.011, 0.0, 0.0])     # at the near plane
-    means[1] = torch.tensor([-1.0, 0.0, 0.0])      # behind every camera
-    means[2] = torch.tensor([2.0, 9.0, 0.0])       # far off-axis: the clamped Jacobian
-    quats[3] = 0.0                                 # zero-norm quaternion: the identity
-    scales[4] = torch.tensor([1e-7, 1e-7, 1e-7])   # near-singular: the 2D covariance is eps2d I
-    scales[5] = torch.tensor([1e3, 1e3, 1e3])      # huge
-    scales[6] = torch.tensor([1e-7, 0.5, 0.5])     # a flat disc
+    means[0] = torch.tensor([0.011, 0.0, 0.0])  # at the near plane
+    means[1] = torch.tensor([-1.0, 0.0, 0.0])  # behind every camera
+    means[2] = torch.tensor([2.0, 9.0, 0.0])  # far off-axis: the clamped Jacobian
+    quats[3] = 0.0  # zero-norm quaternion: the identity
+    scales[4] = torch.tensor([1e-7, 1e-7, 1e-7])  # near-singular: the 2D covariance is eps2d I
+    scales[5] = torch.tensor([1e3, 1e3, 1e3])  # huge
+    scales[6] = torch.tensor([1e-7, 0.5, 0.5])  # a flat disc
     return means[:n], quats[:n], scales[:n]
 
 
@@ -46,9 +57,10 @@ def project_both(dtype, n=400, seed=0, width=48, height=32):
     kept = out_t[3] > 0
     g = torch.Generator().manual_seed(seed + 1)
     # the compositor never reads culled pairs, so their upstream gradients are zero in training as well
-    ups = [torch.randn(t.shape, generator=g, dtype=dtype) * (kept[..., None] if t.dim() == 3 else kept)
-           for t in out_t[:3]]
-    for out, key in ((out_t, "torch"), (out_c, "cpu")):
+    ups = [
+        torch.randn(t.shape, generator=g, dtype=dtype) * (kept[..., None] if t.dim() == 3 else kept) for t in out_t[:3]
+    ]
+    for out in (out_t, out_c):
         sum((o * u).sum() for o, u in zip(out[:3], ups)).backward()
     return out_t, out_c, [t.grad for t in leaves["torch"]], [t.grad for t in leaves["cpu"]], kept
 
@@ -94,8 +106,9 @@ def test_rasterize_uses_the_reference_projection_when_cameras_need_gradients():
     Vs, Ks = cameras(24, 16, torch.float32)
     means, quats, scales = scene(50, 3, torch.float32)
     V = Vs[:1].clone().requires_grad_(True)
-    img, *_ = rasterize(means, quats, scales, torch.full((50,), 0.8), torch.rand(50, 3), V, Ks[:1], 24, 16,
-                        backend="cpu")
+    img, *_ = rasterize(
+        means, quats, scales, torch.full((50,), 0.8), torch.rand(50, 3), V, Ks[:1], 24, 16, backend="cpu"
+    )
     img.sum().backward()
     assert V.grad is not None and V.grad.abs().max() > 0
 

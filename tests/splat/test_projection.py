@@ -1,4 +1,5 @@
 """The projection's 2D covariance against the textbook matrix form J W Sigma W^T J^T (values and gradients)."""
+
 import torch
 
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
@@ -25,8 +26,14 @@ def reference_cov2d(means, quats, scales, viewmat, K, width, height):
 def test_conics_match_the_matrix_form_with_gradients():
     g = torch.Generator().manual_seed(0)
     n = 64
-    means = torch.stack([torch.rand(n, generator=g, dtype=torch.float64) * 4 + 1,
-                         torch.randn(n, generator=g, dtype=torch.float64), torch.randn(n, generator=g, dtype=torch.float64)], -1)
+    means = torch.stack(
+        [
+            torch.rand(n, generator=g, dtype=torch.float64) * 4 + 1,
+            torch.randn(n, generator=g, dtype=torch.float64),
+            torch.randn(n, generator=g, dtype=torch.float64),
+        ],
+        -1,
+    )
     means[0] = torch.tensor([2.0, 9.0, 0.0], dtype=torch.float64)  # far outside the image: clamped Jacobian
     quats = torch.randn(n, 4, generator=g, dtype=torch.float64)
     scales = torch.rand(n, 3, generator=g, dtype=torch.float64) * 0.3 + 0.01

@@ -1,4 +1,5 @@
 """The pure-PyTorch reference rasterizer: analytic cases, culling, gradcheck, SH."""
+
 import math
 
 import numpy as np
@@ -20,8 +21,14 @@ def camera(width=32, height=24, dtype=torch.float64):
 
 def scene(n, seed=0, dtype=torch.float64):
     g = torch.Generator().manual_seed(seed)
-    means = torch.stack([torch.rand(n, generator=g) * 3 + 2, torch.rand(n, generator=g) * 2 - 1,
-                         torch.rand(n, generator=g) * 1.4 - 0.7], -1).to(dtype)
+    means = torch.stack(
+        [
+            torch.rand(n, generator=g) * 3 + 2,
+            torch.rand(n, generator=g) * 2 - 1,
+            torch.rand(n, generator=g) * 1.4 - 0.7,
+        ],
+        -1,
+    ).to(dtype)
     quats = torch.randn(n, 4, generator=g).to(dtype)
     scales = (torch.rand(n, 3, generator=g) * 0.15 + 0.03).to(dtype)
     opac = (torch.rand(n, generator=g) * 0.8 + 0.1).to(dtype)
@@ -42,9 +49,18 @@ def test_single_isotropic_gaussian_matches_the_analytic_2d_gaussian():
     V, K = camera(64, 64)
     s, z, o = 0.05, 4.0, 0.5
     means = torch.tensor([[z, 0.0, 0.0]], dtype=torch.float64)
-    img, alpha, depth, meta = rasterize(means, torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64),
-                                        torch.full((1, 3), s, dtype=torch.float64), torch.tensor([o], dtype=torch.float64),
-                                        torch.ones(1, 3, dtype=torch.float64), V, K, 64, 64, backend="torch")
+    img, alpha, depth, meta = rasterize(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64),
+        torch.full((1, 3), s, dtype=torch.float64),
+        torch.tensor([o], dtype=torch.float64),
+        torch.ones(1, 3, dtype=torch.float64),
+        V,
+        K,
+        64,
+        64,
+        backend="torch",
+    )
     f = K[0, 0, 0].item()
     var = (f * s / z) ** 2 + 0.3  # EWA variance in pixels^2 plus the 0.3 low-pass
     jj, ii = np.meshgrid(np.arange(64) + 0.5, np.arange(64) + 0.5)
@@ -58,8 +74,15 @@ def test_single_isotropic_gaussian_matches_the_analytic_2d_gaussian():
 def test_behind_near_and_off_image_gaussians_are_culled():
     V, K = camera()
     means = torch.tensor([[-3.0, 0, 0], [0.005, 0, 0], [3.0, 50.0, 0], [3.0, 0, 0]], dtype=torch.float64)
-    _, _, _, radii = project_gaussians(means, torch.tensor([[1.0, 0, 0, 0]] * 4, dtype=torch.float64),
-                                       torch.full((4, 3), 0.1, dtype=torch.float64), V, K, 32, 24)
+    _, _, _, radii = project_gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]] * 4, dtype=torch.float64),
+        torch.full((4, 3), 0.1, dtype=torch.float64),
+        V,
+        K,
+        32,
+        24,
+    )
     assert radii[0].tolist()[:3] == [0, 0, 0] and radii[0, 3] > 0
 
 
@@ -91,7 +114,9 @@ def test_background_and_contributions():
     V, K = camera()
     means, quats, scales, opac, colors = scene(20, seed=2)
     bg = torch.tensor([[0.2, 0.4, 0.6]], dtype=torch.float64)
-    img, alpha, _, meta = rasterize(means, quats, scales, opac, colors, V, K, 32, 24, backgrounds=bg, return_contrib=True, backend="torch")
+    img, alpha, _, meta = rasterize(
+        means, quats, scales, opac, colors, V, K, 32, 24, backgrounds=bg, return_contrib=True, backend="torch"
+    )
     img0, _, _, _ = rasterize(means, quats, scales, opac, colors, V, K, 32, 24, backend="torch")
     torch.testing.assert_close(img, img0 + (1 - alpha) * bg[0])
     # blending weights of all Gaussians sum to the rendered alpha over the image

@@ -1,4 +1,5 @@
 """The C++ ``cpu`` backend against the PyTorch reference: values and every gradient, float32."""
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -15,27 +16,37 @@ ATOL_VALUE, ATOL_GRAD, RTOL = 2e-5, 2e-4, 1e-3
 
 def cameras(width, height):
     Ks = torch.tensor(intrinsics_from_fov(width, height, 70.0), dtype=torch.float32)[None].repeat(2, 1, 1)
-    Vs = torch.stack([torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32),
-                      torch.tensor(look_at_viewmat([0.2, -0.3, 0.1], [1, 0.4, -0.2]), dtype=torch.float32)])
+    Vs = torch.stack(
+        [
+            torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32),
+            torch.tensor(look_at_viewmat([0.2, -0.3, 0.1], [1, 0.4, -0.2]), dtype=torch.float32),
+        ]
+    )
     return Vs, Ks
 
 
 def random_scene(n, seed, extremes=True):
     g = torch.Generator().manual_seed(seed)
-    means = torch.stack([torch.rand(n, generator=g) * 4 + 0.5, torch.rand(n, generator=g) * 3 - 1.5,
-                         torch.rand(n, generator=g) * 2 - 1], -1)
+    means = torch.stack(
+        [
+            torch.rand(n, generator=g) * 4 + 0.5,
+            torch.rand(n, generator=g) * 3 - 1.5,
+            torch.rand(n, generator=g) * 2 - 1,
+        ],
+        -1,
+    )
     quats = torch.randn(n, 4, generator=g)
     scales = torch.rand(n, 3, generator=g) * 0.2 + 0.02
     opac = torch.rand(n, generator=g) * 0.9 + 0.05
     sh = torch.randn(n, 16, 3, generator=g) * 0.3
     if extremes:
-        means[0] = torch.tensor([-1.0, 0.0, 0.0])     # behind the camera
-        means[1] = torch.tensor([0.011, 0.0, 0.0])    # at the near plane
+        means[0] = torch.tensor([-1.0, 0.0, 0.0])  # behind the camera
+        means[1] = torch.tensor([0.011, 0.0, 0.0])  # at the near plane
         scales[2] = torch.tensor([1e-6, 1e-6, 1e-6])  # extremely thin
-        scales[3] = torch.tensor([1e3, 1e3, 1e3])     # huge
-        quats[4] = 0.0                                # zero-norm quaternion
-        scales[5] = torch.tensor([1e-6, 0.3, 0.3])    # a flat disc
-        opac[6] = 1.0                                 # alpha clamped at 0.99 near its centre
+        scales[3] = torch.tensor([1e3, 1e3, 1e3])  # huge
+        quats[4] = 0.0  # zero-norm quaternion
+        scales[5] = torch.tensor([1e-6, 0.3, 0.3])  # a flat disc
+        opac[6] = 1.0  # alpha clamped at 0.99 near its centre
     return means, quats, scales, opac, sh
 
 
@@ -44,12 +55,27 @@ def run(backend, scene, sh_degree, width=40, height=28):
     leaves = [t.clone().requires_grad_(True) for t in scene]
     m, q, s, o, sh = leaves
     colors = sh if sh_degree is not None else torch.sigmoid(sh[:, 0])
-    img, alpha, depth, meta = rasterize(m, q, s, o, colors, Vs, Ks, width, height, sh_degree=sh_degree, backend=backend,
-                                        backgrounds=torch.tensor([[0.1, 0.2, 0.3], [0.0, 0.0, 0.0]]))
+    img, alpha, depth, meta = rasterize(
+        m,
+        q,
+        s,
+        o,
+        colors,
+        Vs,
+        Ks,
+        width,
+        height,
+        sh_degree=sh_degree,
+        backend=backend,
+        backgrounds=torch.tensor([[0.1, 0.2, 0.3], [0.0, 0.0, 0.0]]),
+    )
     meta["means2d"].retain_grad()
     g = torch.Generator().manual_seed(99)
-    loss = ((img * torch.rand(img.shape, generator=g)).sum() + (alpha * torch.rand(alpha.shape, generator=g)).sum()
-            + 0.1 * (depth * torch.rand(depth.shape, generator=g)).sum())
+    loss = (
+        (img * torch.rand(img.shape, generator=g)).sum()
+        + (alpha * torch.rand(alpha.shape, generator=g)).sum()
+        + 0.1 * (depth * torch.rand(depth.shape, generator=g)).sum()
+    )
     loss.backward()
     return (img.detach(), alpha.detach(), depth.detach(), meta["means2d"].grad), [t.grad for t in leaves]
 
@@ -95,8 +121,9 @@ def test_cpu_contributions_match_torch(seed, width, height):
     Vs, Ks = cameras(width, height)
     out = {}
     for backend in ("torch", "cpu"):
-        *_, meta = rasterize(m, q, s, o, torch.sigmoid(sh[:, 0]), Vs, Ks, width, height, backend=backend,
-                             return_contrib=True)
+        *_, meta = rasterize(
+            m, q, s, o, torch.sigmoid(sh[:, 0]), Vs, Ks, width, height, backend=backend, return_contrib=True
+        )
         out[backend] = meta
     for key in ("weight_sum", "weight_max", "trans_max"):
         ref, got = out["torch"][key], out["cpu"][key]

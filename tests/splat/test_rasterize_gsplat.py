@@ -1,5 +1,6 @@
 """gsplat (CUDA) against the torch reference: values, gradients, radii and means2d, per-Gaussian contributions,
 ``auto`` choosing it. The ``cuda`` tests run only where CUDA and gsplat exist."""
+
 import pytest
 import torch
 
@@ -12,15 +13,30 @@ W, H = 64, 48
 
 def random_scene(n=300, seed=0):
     g = torch.Generator().manual_seed(seed)
-    means = torch.stack([torch.rand(n, generator=g) * 4 + 0.5, torch.rand(n, generator=g) * 3 - 1.5,
-                         torch.rand(n, generator=g) * 2 - 1], -1)
+    means = torch.stack(
+        [
+            torch.rand(n, generator=g) * 4 + 0.5,
+            torch.rand(n, generator=g) * 3 - 1.5,
+            torch.rand(n, generator=g) * 2 - 1,
+        ],
+        -1,
+    )
     opac = torch.rand(n, generator=g) * 0.98 + 0.01
     opac[:5] = 0.002  # below 1/255: gsplat culls them, the reference keeps them (they blend nothing)
-    scene = [means, torch.randn(n, 4, generator=g), torch.rand(n, 3, generator=g) * 0.2 + 0.02, opac,
-             torch.randn(n, 16, 3, generator=g) * 0.3]
+    scene = [
+        means,
+        torch.randn(n, 4, generator=g),
+        torch.rand(n, 3, generator=g) * 0.2 + 0.02,
+        opac,
+        torch.randn(n, 16, 3, generator=g) * 0.3,
+    ]
     Ks = torch.tensor(intrinsics_from_fov(W, H, 70.0), dtype=torch.float32)[None].repeat(2, 1, 1)
-    Vs = torch.stack([torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32),
-                      torch.tensor(look_at_viewmat([0.2, -0.3, 0.1], [1, 0.4, -0.2]), dtype=torch.float32)])
+    Vs = torch.stack(
+        [
+            torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32),
+            torch.tensor(look_at_viewmat([0.2, -0.3, 0.1], [1, 0.4, -0.2]), dtype=torch.float32),
+        ]
+    )
     return scene, Vs, Ks
 
 
@@ -37,10 +53,21 @@ def test_gsplat_is_refused_clearly_where_it_cannot_run():
 def test_gsplat_matches_torch_values_and_gradients():
     g = torch.Generator().manual_seed(0)
     n = 200
-    means = torch.stack([torch.rand(n, generator=g) * 4 + 0.5, torch.rand(n, generator=g) * 3 - 1.5,
-                         torch.rand(n, generator=g) * 2 - 1], -1)
-    scene = [means, torch.randn(n, 4, generator=g), torch.rand(n, 3, generator=g) * 0.2 + 0.02,
-             torch.rand(n, generator=g) * 0.9 + 0.05, torch.randn(n, 16, 3, generator=g) * 0.3]
+    means = torch.stack(
+        [
+            torch.rand(n, generator=g) * 4 + 0.5,
+            torch.rand(n, generator=g) * 3 - 1.5,
+            torch.rand(n, generator=g) * 2 - 1,
+        ],
+        -1,
+    )
+    scene = [
+        means,
+        torch.randn(n, 4, generator=g),
+        torch.rand(n, 3, generator=g) * 0.2 + 0.02,
+        torch.rand(n, generator=g) * 0.9 + 0.05,
+        torch.randn(n, 16, 3, generator=g) * 0.3,
+    ]
     scene[1][0] = 0.0  # a zero-norm quaternion: the identity in panorecon's convention
     Ks = torch.tensor(intrinsics_from_fov(64, 48, 70.0), dtype=torch.float32)[None]
     Vs = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
@@ -79,8 +106,12 @@ def test_gsplat_radii_and_means2d_follow_the_documented_conventions():
     scale = r["g"].abs().max()
     torch.testing.assert_close(g["g"][both] / scale, r["g"][both] / scale, atol=2e-3, rtol=1e-2)
     only_ref = (r["radii"] > 0) & ~(g["radii"] > 0)
-    near_border = ((r["means2d"][..., 0] < r["radii"]) | (r["means2d"][..., 0] > W - r["radii"])
-                   | (r["means2d"][..., 1] < r["radii"]) | (r["means2d"][..., 1] > H - r["radii"]))
+    near_border = (
+        (r["means2d"][..., 0] < r["radii"])
+        | (r["means2d"][..., 0] > W - r["radii"])
+        | (r["means2d"][..., 1] < r["radii"])
+        | (r["means2d"][..., 1] > H - r["radii"])
+    )
     faint = (o < 1 / 255)[None].expand_as(only_ref)
     assert (only_ref <= (near_border | faint)).all()
     assert not (g["radii"] > 0)[:, :5].any()  # opacity 0.002 < 1/255
@@ -105,8 +136,9 @@ def test_gsplat_contributions_equal_the_cpu_backends():
     # where alpha is near 1/255: contributions agree to a small absolute amount (pixels)
     for k in ("weight_sum", "weight_max", "trans_max"):
         torch.testing.assert_close(got[k].cpu(), ref[k], atol=0.05 if k == "weight_sum" else 0.01, rtol=1e-3)
-    by_grad = weight_sum_by_gradient(lambda ones: rasterize(*cuda[:4], ones, *cuda[5:], W, H, backend="gsplat")[0],
-                                     2, len(m), device="cuda")
+    by_grad = weight_sum_by_gradient(
+        lambda ones: rasterize(*cuda[:4], ones, *cuda[5:], W, H, backend="gsplat")[0], 2, len(m), device="cuda"
+    )
     torch.testing.assert_close(by_grad, got["weight_sum"], atol=1e-3, rtol=1e-4)
 
 

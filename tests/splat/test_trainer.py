@@ -9,9 +9,9 @@ from panorecon.metrics.lpips import lpips_or_reason
 from panorecon.scenes import load_scene
 from panorecon.sources import run_source
 from panorecon.splat import trainer as trainer_mod
+from panorecon.splat.model import GaussianModel
 from panorecon.splat.ply import load_ply
 from panorecon.splat.strategy import DefaultStrategy, edit_parameters
-from panorecon.splat.model import GaussianModel
 from panorecon.splat.trainer import TrainConfig, train
 from panorecon.teachers import get_teacher
 
@@ -26,8 +26,9 @@ def setup():
 
 
 def cfg(**kw):
-    base = dict(iters=60, res=32, labels=24, heldout=2, checkpoint_every=20, history_every=20, sh_degree=1,
-                sh_increase_every=30)
+    base = dict(
+        iters=60, res=32, labels=24, heldout=2, checkpoint_every=20, history_every=20, sh_degree=1, sh_increase_every=30
+    )
     base.update(kw)
     return TrainConfig(**base)
 
@@ -81,8 +82,16 @@ def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     scene, pc, depth_fn = setup
     from panorecon.splat.initial import points_for_resolution
 
-    c = dict(iters=1, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=0, sh_degree=0,
-             init_pixels_per_point=4.0)
+    c = dict(
+        iters=1,
+        res=16,
+        labels=4,
+        heldout=0,
+        checkpoint_every=0,
+        history_every=0,
+        sh_degree=0,
+        init_pixels_per_point=4.0,
+    )
     n = points_for_resolution(16, 60.0, 4.0)
     assert n < len(pc)
     assert train(scene, pc, TrainConfig(**c), tmp_path / "a", progress=False)["initial_gaussians"] == n
@@ -130,12 +139,14 @@ def test_strategy_clones_splits_prunes_and_keeps_adam_aligned():
     model = GaussianModel.from_point_cloud(pc, sh_degree=1)
     with torch.no_grad():
         model.log_scales[:3] = np.log(0.001)  # small: cloned
-        model.log_scales[3:] = np.log(1.0)    # large: split
-        model.logit_opacities[5] = -10.0      # transparent: pruned
+        model.log_scales[3:] = np.log(1.0)  # large: split
+        model.logit_opacities[5] = -10.0  # transparent: pruned
     from panorecon.splat.trainer import _adam
 
     opt = _adam(model, [(n, 1e-3) for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
-    (model.means.sum() + model.sh().sum() + model.opacities().sum() + model.scales().sum() + model.quats.sum()).backward()
+    (
+        model.means.sum() + model.sh().sum() + model.opacities().sum() + model.scales().sum() + model.quats.sum()
+    ).backward()
     opt.step()
     s = DefaultStrategy(refine_start=0, refine_every=1)
     s.grad_sum = torch.tensor([1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
@@ -177,8 +188,18 @@ def _observe_views(strategy, model, n_views=6):
     for k in range(n_views):
         eye = [0.0, 0.05 * k, 0.0]
         V = torch.tensor(look_at_viewmat(eye, [3.0, 0.05 * k, 0.0]), dtype=torch.float32)[None]
-        img, alpha, depth, meta = rasterize(model.means, model.quats, model.scales(), model.opacities(),
-                                            model.sh()[:, 0] * 0 + 0.5, V, K, 64, 64, return_contrib=True)
+        img, alpha, depth, meta = rasterize(
+            model.means,
+            model.quats,
+            model.scales(),
+            model.opacities(),
+            model.sh()[:, 0] * 0 + 0.5,
+            V,
+            K,
+            64,
+            64,
+            return_contrib=True,
+        )
         meta["means2d"].retain_grad()
         img.sum().backward()
         strategy.observe(model, meta, 64, 64)
@@ -188,10 +209,21 @@ def test_adaptive_strategy_prunes_hidden_gaussians_and_protects_surface_detail()
     from panorecon.splat.strategy import AdaptiveStrategy
 
     model = _stack_scene()
-    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": 0.0, "name": n}
-                            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
-    s = AdaptiveStrategy(refine_start=0, refine_stop=100, refine_every=10, grad_threshold=1e9, threshold_start=10.0,
-                         threshold_end=20.0, relax_fraction=0.5)
+    opt = torch.optim.Adam(
+        [
+            {"params": [getattr(model, n)], "lr": 0.0, "name": n}
+            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")
+        ]
+    )
+    s = AdaptiveStrategy(
+        refine_start=0,
+        refine_stop=100,
+        refine_every=10,
+        grad_threshold=1e9,
+        threshold_start=10.0,
+        threshold_end=20.0,
+        relax_fraction=0.5,
+    )
     _observe_views(s, model)
     score = s.top_contrib.mean(1)
     # the wall contributes thousands of pixels; the detail a few; the hidden one only what leaks through the wall
@@ -209,8 +241,12 @@ def test_adaptive_strategy_in_the_relaxation_stage_prunes_nothing():
     from panorecon.splat.strategy import AdaptiveStrategy
 
     model = _stack_scene()
-    opt = torch.optim.Adam([{"params": [getattr(model, n)], "lr": 0.0, "name": n}
-                            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")])
+    opt = torch.optim.Adam(
+        [
+            {"params": [getattr(model, n)], "lr": 0.0, "name": n}
+            for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")
+        ]
+    )
     s = AdaptiveStrategy(refine_start=0, refine_stop=100, refine_every=10, grad_threshold=1e9, relax_fraction=0.5)
     _observe_views(s, model)
     assert s.step(model, opt, 20, extent=1.0)["pruned"] == 0 and len(model) == 3

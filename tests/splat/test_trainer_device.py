@@ -1,5 +1,6 @@
 """The trainer on a device: what metrics.json records, no host reads in the step loop, non-finite losses still
 caught; and (marked ``cuda``) training on a GPU against the CPU, checkpoints across devices, gsplat + adaptive."""
+
 import json
 
 import numpy as np
@@ -29,8 +30,15 @@ def box_room(width: int = 128) -> Scene:
     p = d * dist[..., None]
     checker = (np.floor(p * 2).sum(-1) % 2)[..., None]
     rgb = (255 * (0.25 + 0.5 * checker * np.array([0.9, 0.6, 0.3]) + 0.2 * (p - lo) / (hi - lo))).clip(0, 255)
-    return Scene("box-room", "synthetic", "analytic box room", rgb.astype(np.uint8), dist.astype(np.float32),
-                 np.zeros(dist.shape, bool), distance_kind="truth")
+    return Scene(
+        "box-room",
+        "synthetic",
+        "analytic box room",
+        rgb.astype(np.uint8),
+        dist.astype(np.float32),
+        np.zeros(dist.shape, bool),
+        distance_kind="truth",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +51,9 @@ def setup():
 
 
 def cfg(**kw):
-    base = dict(iters=30, res=32, labels=12, heldout=2, checkpoint_every=20, history_every=10, sh_degree=1,
-                sh_increase_every=15)
+    base = dict(
+        iters=30, res=32, labels=12, heldout=2, checkpoint_every=20, history_every=10, sh_degree=1, sh_increase_every=15
+    )
     base.update(kw)
     return TrainConfig(**base)
 
@@ -113,8 +122,15 @@ def test_cuda_training_matches_the_cpu_at_its_first_steps(setup, tmp_path, backe
         pytest.skip("needs gsplat")
     scene, pc, depth_fn = setup
     c = cfg(iters=5, history_every=1, checkpoint_every=0, backend="auto" if backend == "gsplat" else backend)
-    cpu = train(scene, pc, cfg(iters=5, history_every=1, checkpoint_every=0, backend="torch"), tmp_path / "cpu",
-                depth_fn, progress=False, device="cpu")
+    cpu = train(
+        scene,
+        pc,
+        cfg(iters=5, history_every=1, checkpoint_every=0, backend="torch"),
+        tmp_path / "cpu",
+        depth_fn,
+        progress=False,
+        device="cpu",
+    )
     gpu = train(scene, pc, c, tmp_path / "gpu", depth_fn, progress=False, device="cuda")
     assert gpu["backend"] == backend and gpu["device"].startswith("cuda") and gpu["peak_gpu_memory_mb"] > 0
     for a, b in zip(cpu["history"], gpu["history"]):

@@ -2,6 +2,7 @@
 (a known depth at the processor's resolution comes back exactly at the view's pixels, square and non-square,
 batched equal to unbatched) and tiny random-weight Depth Anything (relative, metric) and DPT models built from
 their configs, end to end through ``points`` and ``train``."""
+
 import json
 import os
 import types
@@ -11,8 +12,15 @@ import pytest
 import torch
 
 transformers = pytest.importorskip("transformers")
-from transformers import (AutoModelForDepthEstimation, DepthAnythingConfig, DepthProConfig, Dinov2Config,  # noqa: E402
-                          DPTConfig, DPTImageProcessor, ZoeDepthConfig)
+from transformers import (  # noqa: E402 (after the importorskip)
+    AutoModelForDepthEstimation,
+    DepthAnythingConfig,
+    DepthProConfig,
+    Dinov2Config,  # noqa: E402
+    DPTConfig,
+    DPTImageProcessor,
+    ZoeDepthConfig,
+)
 from transformers.modeling_outputs import DepthEstimatorOutput  # noqa: E402
 
 from panorecon.cli import main  # noqa: E402
@@ -25,26 +33,51 @@ from panorecon.teachers.hf_teacher import OUTPUT_KINDS, output_kind  # noqa: E40
 
 
 def _dinov2():
-    return Dinov2Config(hidden_size=16, num_hidden_layers=4, num_attention_heads=2, intermediate_size=32, patch_size=14,
-                        image_size=56, out_features=["stage1", "stage2", "stage3", "stage4"],
-                        reshape_hidden_states=False)
+    return Dinov2Config(
+        hidden_size=16,
+        num_hidden_layers=4,
+        num_attention_heads=2,
+        intermediate_size=32,
+        patch_size=14,
+        image_size=56,
+        out_features=["stage1", "stage2", "stage3", "stage4"],
+        reshape_hidden_states=False,
+    )
 
 
 def _depth_anything(kind: str):
-    return DepthAnythingConfig(backbone_config=_dinov2(), reassemble_hidden_size=16, patch_size=14,
-                               neck_hidden_sizes=[8, 8, 8, 8], fusion_hidden_size=8, head_hidden_size=8,
-                               depth_estimation_type=kind, max_depth=10)
+    return DepthAnythingConfig(
+        backbone_config=_dinov2(),
+        reassemble_hidden_size=16,
+        patch_size=14,
+        neck_hidden_sizes=[8, 8, 8, 8],
+        fusion_hidden_size=8,
+        head_hidden_size=8,
+        depth_estimation_type=kind,
+        max_depth=10,
+    )
 
 
 def _dpt():
-    return DPTConfig(hidden_size=16, num_hidden_layers=4, num_attention_heads=2, intermediate_size=32, image_size=64,
-                     patch_size=16, neck_hidden_sizes=[8, 8, 8, 8], fusion_hidden_size=8,
-                     backbone_out_indices=[0, 1, 2, 3], reassemble_factors=[4, 2, 1, 0.5])
+    return DPTConfig(
+        hidden_size=16,
+        num_hidden_layers=4,
+        num_attention_heads=2,
+        intermediate_size=32,
+        image_size=64,
+        patch_size=16,
+        neck_hidden_sizes=[8, 8, 8, 8],
+        fusion_hidden_size=8,
+        backbone_out_indices=[0, 1, 2, 3],
+        reassemble_factors=[4, 2, 1, 0.5],
+    )
 
 
 # Depth Anything's processor keeps the aspect ratio with sides a multiple of 14; DPT-Large's resizes to a square
-PROCESSORS = {"da": dict(size={"height": 56, "width": 56}, keep_aspect_ratio=True, ensure_multiple_of=14),
-              "dpt": dict(size={"height": 64, "width": 64}, keep_aspect_ratio=False)}
+PROCESSORS = {
+    "da": dict(size={"height": 56, "width": 56}, keep_aspect_ratio=True, ensure_multiple_of=14),
+    "dpt": dict(size={"height": 64, "width": 64}, keep_aspect_ratio=False),
+}
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +86,11 @@ def models(tmp_path_factory):
     root = tmp_path_factory.mktemp("hf")
     torch.manual_seed(0)
     out = {}
-    for name, cfg, proc in (("da-relative", _depth_anything("relative"), "da"),
-                            ("da-metric", _depth_anything("metric"), "da"), ("dpt", _dpt(), "dpt")):
+    for name, cfg, proc in (
+        ("da-relative", _depth_anything("relative"), "da"),
+        ("da-metric", _depth_anything("metric"), "da"),
+        ("dpt", _dpt(), "dpt"),
+    ):
         AutoModelForDepthEstimation.from_config(cfg).save_pretrained(root / name)
         DPTImageProcessor(**PROCESSORS[proc]).save_pretrained(root / name)
         out[name] = root / name
@@ -64,13 +100,29 @@ def models(tmp_path_factory):
 def _zoedepth():
     from transformers import BeitConfig
 
-    backbone = BeitConfig(hidden_size=16, num_hidden_layers=4, num_attention_heads=2, intermediate_size=32,
-                          image_size=64, patch_size=16, out_features=["stage1", "stage2", "stage3", "stage4"],
-                          reshape_hidden_states=False, use_relative_position_bias=True)
-    return ZoeDepthConfig(backbone_config=backbone, neck_hidden_sizes=[8, 8, 8, 8], fusion_hidden_size=8,
-                          bottleneck_features=8, num_attractors=[4, 4, 4, 4], bin_embedding_dim=8,
-                          num_relative_features=8, patch_size=16, reassemble_hidden_size=16,
-                          bin_configurations=[{"n_bins": 8, "min_depth": 0.001, "max_depth": 10.0, "name": "nyu"}])
+    backbone = BeitConfig(
+        hidden_size=16,
+        num_hidden_layers=4,
+        num_attention_heads=2,
+        intermediate_size=32,
+        image_size=64,
+        patch_size=16,
+        out_features=["stage1", "stage2", "stage3", "stage4"],
+        reshape_hidden_states=False,
+        use_relative_position_bias=True,
+    )
+    return ZoeDepthConfig(
+        backbone_config=backbone,
+        neck_hidden_sizes=[8, 8, 8, 8],
+        fusion_hidden_size=8,
+        bottleneck_features=8,
+        num_attractors=[4, 4, 4, 4],
+        bin_embedding_dim=8,
+        num_relative_features=8,
+        patch_size=16,
+        reassemble_hidden_size=16,
+        bin_configurations=[{"n_bins": 8, "min_depth": 0.001, "max_depth": 10.0, "name": "nyu"}],
+    )
 
 
 def test_zoedepth_runs_where_torchvision_is_else_one_line(tmp_path):
@@ -78,8 +130,9 @@ def test_zoedepth_runs_where_torchvision_is_else_one_line(tmp_path):
     from transformers import ZoeDepthImageProcessor
 
     AutoModelForDepthEstimation.from_config(_zoedepth()).save_pretrained(tmp_path / "zoe")
-    ZoeDepthImageProcessor(size={"height": 64, "width": 64}, keep_aspect_ratio=True,
-                           ensure_multiple_of=16).save_pretrained(tmp_path / "zoe")
+    ZoeDepthImageProcessor(
+        size={"height": 64, "width": 64}, keep_aspect_ratio=True, ensure_multiple_of=16
+    ).save_pretrained(tmp_path / "zoe")
     try:
         import torchvision  # noqa: F401
     except ImportError:
@@ -124,8 +177,10 @@ def test_a_model_id_in_the_hub_cache_loads_offline(models, tmp_path):
     shutil.copytree(models["dpt"], repo / "snapshots" / commit)
     (repo / "refs").mkdir()
     (repo / "refs" / "main").write_text(commit)
-    code = ("from panorecon.teachers import get_teacher, teacher_fingerprint; t = get_teacher('hf:tiny-org/tiny-dpt'); "
-            "print(t.output.kind, teacher_fingerprint('hf:tiny-org/tiny-dpt'))")
+    code = (
+        "from panorecon.teachers import get_teacher, teacher_fingerprint; t = get_teacher('hf:tiny-org/tiny-dpt'); "
+        "print(t.output.kind, teacher_fingerprint('hf:tiny-org/tiny-dpt'))"
+    )
     env = {**os.environ, "HF_HOME": str(tmp_path / "hf_home"), "HF_HUB_OFFLINE": "1"}
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
@@ -135,8 +190,20 @@ def test_a_model_id_in_the_hub_cache_loads_offline(models, tmp_path):
 
 def test_cli_missing_model_exits_2_and_writes_nothing(tmp_path, capsys):
     out = tmp_path / "out"
-    rc = main(["points", "bedroom", "--source", "fibonacci", "--teacher", "hf:no-such-org/no-such-model",
-               "--width", "128", "--out", str(out / "c.ply")])
+    rc = main(
+        [
+            "points",
+            "bedroom",
+            "--source",
+            "fibonacci",
+            "--teacher",
+            "hf:no-such-org/no-such-model",
+            "--width",
+            "128",
+            "--out",
+            str(out / "c.ply"),
+        ]
+    )
     assert rc == 2 and not out.exists()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no-such-org/no-such-model" in err[0]
@@ -222,14 +289,56 @@ def test_depth_pro_gets_the_view_fov(models, monkeypatch):
 def test_points_and_train_end_to_end(models, tmp_path):
     for name in ("da-relative", "da-metric", "dpt"):
         out = tmp_path / name
-        assert main(["points", "bedroom", "--source", "fibonacci", "--teacher", f"hf:{models[name]}", "--views", "6",
-                     "--width", "128", "--out", str(out / "c.ply"), "--report", str(out / "r.json")]) == 0
+        assert (
+            main(
+                [
+                    "points",
+                    "bedroom",
+                    "--source",
+                    "fibonacci",
+                    "--teacher",
+                    f"hf:{models[name]}",
+                    "--views",
+                    "6",
+                    "--width",
+                    "128",
+                    "--out",
+                    str(out / "c.ply"),
+                    "--report",
+                    str(out / "r.json"),
+                ]
+            )
+            == 0
+        )
         report = json.loads((out / "r.json").read_text())
         assert report["teacher"] == f"hf:{models[name]}" and (out / "c.ply").stat().st_size > 1000
     out = tmp_path / "train"
-    assert main(["train", "bedroom", "--source", "fibonacci", "--teacher", f"hf:{models['da-relative']}", "--views",
-                 "6", "--width", "128", "--iters", "20", "--res", "32", "--labels", "6", "--no-progress",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "bedroom",
+                "--source",
+                "fibonacci",
+                "--teacher",
+                f"hf:{models['da-relative']}",
+                "--views",
+                "6",
+                "--width",
+                "128",
+                "--iters",
+                "20",
+                "--res",
+                "32",
+                "--labels",
+                "6",
+                "--no-progress",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     m = json.loads((out / "metrics.json").read_text())
     assert np.isfinite(m["pseudo-label"]["psnr"]) and (out / "point_cloud.ply").is_file()
 

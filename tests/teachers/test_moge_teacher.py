@@ -1,6 +1,7 @@
 """``moge:`` teacher through MoGe's package: version and output kind from the checkpoint config, local-only
 loading with one-line errors, each view's FOV handed to ``infer``, batched equal to unbatched, and a tiny
 random-weight MoGe-2 (ViT-S/14 backbone, the smallest MoGe builds) end to end through ``points``."""
+
 import json
 import warnings
 
@@ -19,14 +20,26 @@ from panorecon.teachers.moge_teacher import MOGE1, MOGE2_METRIC, moge_output_kin
 
 
 def _stack(last):
-    return dict(dim_in=[32, 16, 16, 8, 8], dim_out=[None, None, None, None, last], dim_res_blocks=[32, 16, 16, 8, 8],
-                num_res_blocks=[0, 1, 1, 1, 0], res_block_in_norm="none", res_block_hidden_norm="none",
-                resamplers=["conv_transpose"] * 3 + ["bilinear"])
+    return dict(
+        dim_in=[32, 16, 16, 8, 8],
+        dim_out=[None, None, None, None, last],
+        dim_res_blocks=[32, 16, 16, 8, 8],
+        num_res_blocks=[0, 1, 1, 1, 0],
+        res_block_in_norm="none",
+        res_block_hidden_norm="none",
+        resamplers=["conv_transpose"] * 3 + ["bilinear"],
+    )
 
 
-TINY_V2 = dict(encoder=dict(backbone="dinov2_vits14", intermediate_layers=[2, 5, 8, 11], dim_out=32),
-               neck=dict(_stack(None), dim_in=[34, 2, 2, 2, 2]), points_head=_stack(3), mask_head=_stack(1),
-               scale_head=dict(dims=[384, 32, 1]), remap_output="exp", num_tokens_range=[16, 36])
+TINY_V2 = dict(
+    encoder=dict(backbone="dinov2_vits14", intermediate_layers=[2, 5, 8, 11], dim_out=32),
+    neck=dict(_stack(None), dim_in=[34, 2, 2, 2, 2]),
+    points_head=_stack(3),
+    mask_head=_stack(1),
+    scale_head=dict(dims=[384, 32, 1]),
+    remap_output="exp",
+    num_tokens_range=[16, 36],
+)
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +100,27 @@ def test_views_get_their_fov_and_batching_changes_nothing(moge2):
 
 def test_points_end_to_end(moge2, tmp_path):
     out = tmp_path / "p"
-    assert main(["points", "bedroom", "--source", "fibonacci", "--teacher", f"moge:{moge2}", "--views", "4",
-                 "--view-size", "32", "--width", "128", "--out", str(out / "c.ply"), "--report",
-                 str(out / "r.json")]) == 0
+    assert (
+        main(
+            [
+                "points",
+                "bedroom",
+                "--source",
+                "fibonacci",
+                "--teacher",
+                f"moge:{moge2}",
+                "--views",
+                "4",
+                "--view-size",
+                "32",
+                "--width",
+                "128",
+                "--out",
+                str(out / "c.ply"),
+                "--report",
+                str(out / "r.json"),
+            ]
+        )
+        == 0
+    )
     assert json.loads((out / "r.json").read_text())["teacher"] == f"moge:{moge2}"

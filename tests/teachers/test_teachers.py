@@ -88,8 +88,14 @@ class TestFileTeacher:
             assert ok.mean() > 0.99
             np.testing.assert_allclose(v.depth[ok], expected[ok], rtol=1e-6)
 
-    @pytest.mark.parametrize("spec,needle", [("file:/nope.png", "no such file"), ("file:x.png?scale=-1", "positive"),
-                                             ("file:x.png?bogus=1", "unknown option")])
+    @pytest.mark.parametrize(
+        "spec,needle",
+        [
+            ("file:/nope.png", "no such file"),
+            ("file:x.png?scale=-1", "positive"),
+            ("file:x.png?bogus=1", "unknown option"),
+        ],
+    )
     def test_bad_specs(self, spec, needle):
         with pytest.raises(PanoreconInputError, match=needle):
             get_teacher(spec)
@@ -122,8 +128,11 @@ class TestOnnxTeacher:
         axes = helper.make_tensor("axes", TensorProto.INT64, [1], [1])
         two = helper.make_tensor("two", TensorProto.FLOAT, [], [2.0])
         one = helper.make_tensor("one", TensorProto.FLOAT, [], [1.0])
-        nodes = [helper.make_node("ReduceMean", ["image", "axes"], ["m"], keepdims=1),
-                 helper.make_node("Mul", ["m", "two"], ["m2"]), helper.make_node("Add", ["m2", "one"], ["depth"])]
+        nodes = [
+            helper.make_node("ReduceMean", ["image", "axes"], ["m"], keepdims=1),
+            helper.make_node("Mul", ["m", "two"], ["m2"]),
+            helper.make_node("Add", ["m2", "one"], ["depth"]),
+        ]
         graph = helper.make_graph(nodes, "tiny", [x], [y], initializer=[axes, two, one])
         model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
         model.ir_version = 9
@@ -134,8 +143,10 @@ class TestOnnxTeacher:
 
     def test_pre_and_post_processing(self, tmp_path, cams):
         pytest.importorskip("onnxruntime")
-        path = self._model(tmp_path, {"input_size": [8, 12], "mean": [0.5, 0.5, 0.5], "std": [0.5, 0.5, 0.5],
-                                      "output": "z", "mode": "relative"})
+        path = self._model(
+            tmp_path,
+            {"input_size": [8, 12], "mean": [0.5, 0.5, 0.5], "std": [0.5, 0.5, 0.5], "output": "z", "mode": "relative"},
+        )
         scene = load_scene("bedroom", 128)
         t = get_teacher(f"onnx:{path}")
         flat = np.full((16, 24, 3), 191, np.uint8)  # (0.749 - 0.5) / 0.5 = 0.498 -> 2 * 0.498 + 1

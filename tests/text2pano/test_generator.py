@@ -1,4 +1,5 @@
 """The whole generator on a tiny random Stable-Diffusion-shaped model, on the CPU, in seconds."""
+
 import numpy as np
 import pytest
 import torch
@@ -45,6 +46,7 @@ def test_the_decoder_is_wrap_consistent(generator):
 def test_the_seam_block_couples_the_two_ends(generator, monkeypatch):
     """Perturb the initial noise of the rightmost latent columns only: with the seam block the leftmost columns
     of the result change (the ends are denoised together); without it they cannot."""
+
     def run(seam, bump):
         real_randn = torch.randn
 
@@ -83,8 +85,13 @@ class SmoothingDenoiser(torch.nn.Module):
 
 def test_seam_score_with_and_without_the_seam_block(generator):
     """With a coherent denoiser the wrap is as smooth as any column boundary only with the seam block."""
-    smooth = PanoramaGenerator(SmoothingDenoiser(generator.scheduler), generator.vae, generator.text_encoder,
-                               generator.tokenizer, generator.scheduler)
+    smooth = PanoramaGenerator(
+        SmoothingDenoiser(generator.scheduler),
+        generator.vae,
+        generator.text_encoder,
+        generator.tokenizer,
+        generator.scheduler,
+    )
     scores = {}
     for seam in (True, False):
         lat = smooth.denoise("a bedroom", GenerateConfig(**{**CFG, "steps": 20}, seam_block=seam))
@@ -138,8 +145,24 @@ def test_generate_command_writes_the_panorama_and_its_seam_score(tiny_model, tmp
     from panorecon.cli import main
 
     out = tmp_path / "pano.png"
-    assert main(["generate", "--preset", "beach", "--model", str(tiny_model), "--steps", "2", "--width", "128",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "--preset",
+                "beach",
+                "--model",
+                str(tiny_model),
+                "--steps",
+                "2",
+                "--width",
+                "128",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert out.is_file() and "seam score" in capsys.readouterr().out
     assert main(["generate", "--prompt", "x", "--model", str(tmp_path / "none"), "--out", str(tmp_path / "y.png")]) == 2
     assert not (tmp_path / "y.png").exists()

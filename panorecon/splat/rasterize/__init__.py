@@ -2,6 +2,7 @@
 ``cpu`` (C++ with a hand-written backward) and ``gsplat`` (CUDA); ``auto`` picks ``gsplat`` for CUDA tensors
 when gsplat is built and runs, ``cpu`` for CPU tensors when it builds, else ``torch``. Per-Gaussian contributions
 for gsplat come from ``contrib.py``."""
+
 from __future__ import annotations
 
 import logging
@@ -9,7 +10,6 @@ import logging
 import torch
 
 from . import cpu_backend, gsplat_backend
-
 from .projection import project_gaussians, quat_to_rotmat
 from .sh import sh_to_rgb
 from .torch_backend import rasterize_tiles
@@ -29,13 +29,20 @@ def resolve_backend(backend: str, cuda_tensors: bool = False) -> str:
     if backend == "cpu" and cuda_tensors:
         raise RuntimeError("backend='cpu' renders CPU tensors; for CUDA tensors use backend 'gsplat' or 'torch'")
     if backend == "gsplat" and not gsplat_backend.available():
-        raise RuntimeError(f"backend='gsplat' asked for, but it cannot run here: {gsplat_backend.unavailable_reason()} "
-                           "(pip install 'panorecon[cuda]' on a CUDA machine)")
+        raise RuntimeError(
+            f"backend='gsplat' asked for, but it cannot run here: {gsplat_backend.unavailable_reason()} "
+            "(pip install 'panorecon[cuda]' on a CUDA machine)"
+        )
     if backend == "gsplat" and not cuda_tensors:
         raise RuntimeError("backend='gsplat' renders CUDA tensors; for CPU tensors use backend 'cpu' or 'torch'")
     if backend == "auto":
-        chosen = (("gsplat" if gsplat_backend.available() else "torch") if cuda_tensors
-                  else "cpu" if cpu_backend.available() else "torch")
+        chosen = (
+            ("gsplat" if gsplat_backend.available() else "torch")
+            if cuda_tensors
+            else "cpu"
+            if cpu_backend.available()
+            else "torch"
+        )
     else:
         chosen = backend
     if chosen not in _announced:
@@ -44,9 +51,26 @@ def resolve_backend(backend: str, cuda_tensors: bool = False) -> str:
     return chosen
 
 
-def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int, height: int, *, sh_degree=None,
-              near_plane: float = 0.01, far_plane: float = 1e10, backgrounds=None, backend: str = "auto",
-              eps2d: float = 0.3, tile_size: int = 16, return_contrib: bool = False):
+def rasterize(
+    means,
+    quats,
+    scales,
+    opacities,
+    colors,
+    viewmats,
+    Ks,
+    width: int,
+    height: int,
+    *,
+    sh_degree=None,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    backgrounds=None,
+    backend: str = "auto",
+    eps2d: float = 0.3,
+    tile_size: int = 16,
+    return_contrib: bool = False,
+):
     """Render Gaussians into C cameras.
 
     means [N,3] metres; quats [N,4] wxyz (any norm, zero = identity); scales [N,3] metres (linear);
@@ -59,20 +83,42 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
     backend = resolve_backend(backend, means.is_cuda)
     if backend == "gsplat":
         image, alpha, depth, meta = gsplat_backend.rasterize_gsplat(
-            means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree, near_plane, far_plane,
-            backgrounds, eps2d, tile_size, return_contrib)
+            means,
+            quats,
+            scales,
+            opacities,
+            colors,
+            viewmats,
+            Ks,
+            width,
+            height,
+            sh_degree,
+            near_plane,
+            far_plane,
+            backgrounds,
+            eps2d,
+            tile_size,
+            return_contrib,
+        )
         return image, alpha, depth, {**meta, "backend": backend}
     # the C++ projection does not differentiate w.r.t. the cameras: the reference runs when they need gradients
-    project = (cpu_backend.project if backend == "cpu" and not (viewmats.requires_grad or Ks.requires_grad)
-               else project_gaussians)
-    means2d, conics, depths, radii = project(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane,
-                                             eps2d)
+    project = (
+        cpu_backend.project
+        if backend == "cpu" and not (viewmats.requires_grad or Ks.requires_grad)
+        else project_gaussians
+    )
+    means2d, conics, depths, radii = project(
+        means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane, eps2d
+    )
     if sh_degree is None:
-        per_camera = (colors.dim() == 3 and colors.shape[0] == len(viewmats)
-                      and (backend == "torch" or colors.shape[-1] == 3))
+        per_camera = (
+            colors.dim() == 3 and colors.shape[0] == len(viewmats) and (backend == "torch" or colors.shape[-1] == 3)
+        )
         if not per_camera and (colors.dim() != 2 or colors.shape[-1] != 3):
-            raise ValueError(f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB, [C, N, D] per camera (D = 3 "
-                             "on the cpu backend), or SH coefficients [N, K, 3] with sh_degree")
+            raise ValueError(
+                f"colors of shape {tuple(colors.shape)}: expected [N, 3] RGB, [C, N, D] per camera (D = 3 "
+                "on the cpu backend), or SH coefficients [N, K, 3] with sh_degree"
+            )
         cols = colors if per_camera else colors[None].expand(len(viewmats), -1, -1)
     else:
         campos = -torch.einsum("cji,cj->ci", viewmats[:, :3, :3], viewmats[:, :3, 3])
@@ -80,13 +126,15 @@ def rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width: int,
         dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         cols = sh_to_rgb(sh_degree, colors, dirs)
     if backend == "cpu":
-        image, alpha, depth, contrib = cpu_backend.composite(means2d, conics, cols, opacities, depths, radii, width,
-                                                             height, tile_size, return_contrib)
+        image, alpha, depth, contrib = cpu_backend.composite(
+            means2d, conics, cols, opacities, depths, radii, width, height, tile_size, return_contrib
+        )
         if backgrounds is not None:
             image = image + (1 - alpha) * backgrounds[:, None, None, :].to(image.dtype)
     else:
-        image, alpha, depth, contrib = rasterize_tiles(means2d, conics, cols, opacities, depths, radii, width, height,
-                                                       tile_size, backgrounds, return_contrib)
+        image, alpha, depth, contrib = rasterize_tiles(
+            means2d, conics, cols, opacities, depths, radii, width, height, tile_size, backgrounds, return_contrib
+        )
     meta = {"means2d": means2d, "conics": conics, "depths": depths, "radii": radii, "backend": backend}
     if contrib:
         meta.update(contrib)

@@ -12,9 +12,10 @@ T would reach 1e-4); gsplat's own enumerator is ``gsplat_backend.blended_pairs``
 whose per-Gaussian colour is a leaf of ones; the rendered channel is sum_k 1 alpha_k T_k, so the gradient of its
 pixel sum w.r.t. Gaussian i's colour is sum over pixels of alpha_i T_i = weight_sum_i.
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 
@@ -36,8 +37,9 @@ def pair_alphas(means2d, conics, opacities, image_ids, pixel_ids, gaussian_ids, 
     return torch.where((sigma >= 0) & (al >= ALPHA_MIN), al, torch.zeros_like(al))
 
 
-def contributions_from_pairs(means2d, conics, opacities, depths, image_ids, pixel_ids, gaussian_ids,
-                             width: int, height: int) -> dict:
+def contributions_from_pairs(
+    means2d, conics, opacities, depths, image_ids, pixel_ids, gaussian_ids, width: int, height: int
+) -> dict:
     """Exact weight_sum / weight_max / trans_max [C,N] (dtype of means2d) from the pairs a compositor blended.
 
     means2d [C,N,2], conics [C,N,3], opacities [N] or [C,N], depths [C,N]; image_ids, pixel_ids (row-major),
@@ -88,8 +90,13 @@ def pairs_reference(means2d, conics, opacities, radii, width: int, height: int, 
     for c in range(C):
         m = means2d.detach()[c].double()
         r = radii[c].double()
-        touch = ((m[:, 0] + r >= tx0) & (m[:, 0] - r <= tx0 + tw) & (m[:, 1] + r >= ty0) & (m[:, 1] - r <= ty0 + th)
-                 & (radii[c] > 0))  # [P, N]
+        touch = (
+            (m[:, 0] + r >= tx0)
+            & (m[:, 0] - r <= tx0 + tw)
+            & (m[:, 1] + r >= ty0)
+            & (m[:, 1] - r <= ty0 + th)
+            & (radii[c] > 0)
+        )  # [P, N]
         p, g = torch.nonzero(touch, as_tuple=True)
         img = torch.full_like(p, c)
         al = pair_alphas(means2d, conics, opacities, img, pix[p], g, width)
@@ -98,8 +105,9 @@ def pairs_reference(means2d, conics, opacities, radii, width: int, height: int, 
     return tuple(torch.cat(parts) for parts in zip(*out))
 
 
-def weight_sum_by_gradient(render_channel: Callable[[torch.Tensor], torch.Tensor], C: int, N: int,
-                           device=None) -> torch.Tensor:
+def weight_sum_by_gradient(
+    render_channel: Callable[[torch.Tensor], torch.Tensor], C: int, N: int, device=None
+) -> torch.Tensor:
     """weight_sum [C,N] of any differentiable backend: ``render_channel(ones)`` renders per-Gaussian colours
     ``ones`` [C,N,1] (a leaf requiring grad) and returns the rendered channel [C,H,W,1]; the gradient of its sum
     w.r.t. ``ones`` is sum over pixels of alpha_i T_i."""

@@ -1,11 +1,13 @@
 """The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians) and tiled compositing
 (csrc/rasterize_cpu.cpp, parallel over tiles) in C++ with hand-written backwards, through ATen's thread pool
 (OpenMP). Built with torch.utils.cpp_extension on first use
-(or ahead of time by ``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions/<checkout>``
+(or ahead of time by ``python -m panorecon.splat.rasterize.build``) into
+``$PANORECON_CACHE/torch_extensions/<checkout>``
 (default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the two hot
 compositing functions are built twice (AVX2 and baseline x86-64) and the loader picks by CPU. Compositing is
 float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -58,8 +60,14 @@ def load(verbose: bool = False):
 
         directory = build_dir()
         with _exclusive_build(directory):
-            _module = load_ext(name="panorecon_rasterize_cpu", sources=[str(p) for p in _SOURCES], build_directory=str(directory),
-                               extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"], extra_ldflags=["-fopenmp"], verbose=verbose)
+            _module = load_ext(
+                name="panorecon_rasterize_cpu",
+                sources=[str(p) for p in _SOURCES],
+                build_directory=str(directory),
+                extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"],
+                extra_ldflags=["-fopenmp"],
+                verbose=verbose,
+            )
     except Exception as e:  # a missing compiler or headers: fall back to the reference
         _error = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
         log.warning("cpu rasterizer unavailable (%s); the torch reference backend runs instead", _error)
@@ -73,8 +81,9 @@ def available() -> bool:
 class _Project(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane, eps2d):
-        means2d, conics, depths, radii = load().project_forward(means, quats, scales, viewmats, Ks, width, height,
-                                                                near_plane, far_plane, eps2d)
+        means2d, conics, depths, radii = load().project_forward(
+            means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane, eps2d
+        )
         ctx.save_for_backward(means, quats, scales, viewmats, Ks, radii)
         ctx.args = (width, height, near_plane, far_plane, eps2d)
         ctx.mark_non_differentiable(radii)
@@ -83,21 +92,43 @@ class _Project(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_means2d, g_conics, g_depths, _g_radii):
         means, quats, scales, viewmats, Ks, radii = ctx.saved_tensors
-        g = [t.contiguous() if t is not None else torch.zeros(shape, dtype=means.dtype) for t, shape in
-             ((g_means2d, (*radii.shape, 2)), (g_conics, (*radii.shape, 3)), (g_depths, radii.shape))]
+        g = [
+            t.contiguous() if t is not None else torch.zeros(shape, dtype=means.dtype)
+            for t, shape in ((g_means2d, (*radii.shape, 2)), (g_conics, (*radii.shape, 3)), (g_depths, radii.shape))
+        ]
         gm, gq, gs = load().project_backward(means, quats, scales, viewmats, Ks, radii, *g, *ctx.args)
         return gm, gq, gs, None, None, None, None, None, None, None
 
 
-def project(means, quats, scales, viewmats, Ks, width: int, height: int, near_plane: float = 0.01,
-            far_plane: float = 1e10, eps2d: float = 0.3):
+def project(
+    means,
+    quats,
+    scales,
+    viewmats,
+    Ks,
+    width: int,
+    height: int,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    eps2d: float = 0.3,
+):
     """``projection.project_gaussians`` in C++, in the dtype of ``means`` (float32 or float64): means2d
     [C,N,2], conics [C,N,3], depths [C,N], radii [C,N] int32. Differentiable w.r.t. means, quats and scales
     (not the cameras); a culled (camera, Gaussian) pair, radius 0, passes no gradient back."""
     dtype = means.dtype if means.dtype in (torch.float32, torch.float64) else torch.float32
     f = lambda t: t.to(dtype).contiguous()  # noqa: E731
-    means2d, conics, depths, radii = _Project.apply(f(means), f(quats), f(scales), f(viewmats), f(Ks), width, height,
-                                                    float(near_plane), float(far_plane), float(eps2d))
+    means2d, conics, depths, radii = _Project.apply(
+        f(means),
+        f(quats),
+        f(scales),
+        f(viewmats),
+        f(Ks),
+        width,
+        height,
+        float(near_plane),
+        float(far_plane),
+        float(eps2d),
+    )
     return means2d, conics, depths, radii
 
 
@@ -106,7 +137,8 @@ class _Composite(torch.autograd.Function):
     def forward(ctx, means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib):
         ext = load()
         image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max = ext.forward(
-            means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib)
+            means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib
+        )
         ctx.save_for_backward(means2d, conics, colors, opacities, depths, T_final, last, offsets, ids)
         ctx.size = (width, height, tile)
         ctx.mark_non_differentiable(w_sum, w_max, t_max)
@@ -116,20 +148,60 @@ class _Composite(torch.autograd.Function):
     def backward(ctx, g_image, g_alpha, g_depth, *_contrib_grads):
         means2d, conics, colors, opacities, depths, T_final, last, offsets, ids = ctx.saved_tensors
         width, height, tile = ctx.size
-        g = [t.contiguous() if t is not None else torch.zeros_like(ref) for t, ref in
-             ((g_image, T_final[..., None].expand(-1, -1, -1, 3)), (g_alpha, T_final[..., None]), (g_depth, T_final[..., None]))]
-        gm, gc, gcol, gop, gz = load().backward(means2d, conics, colors, opacities, depths, T_final, last, offsets, ids,
-                                                g[0], g[1], g[2], width, height, tile)
+        g = [
+            t.contiguous() if t is not None else torch.zeros_like(ref)
+            for t, ref in (
+                (g_image, T_final[..., None].expand(-1, -1, -1, 3)),
+                (g_alpha, T_final[..., None]),
+                (g_depth, T_final[..., None]),
+            )
+        ]
+        gm, gc, gcol, gop, gz = load().backward(
+            means2d,
+            conics,
+            colors,
+            opacities,
+            depths,
+            T_final,
+            last,
+            offsets,
+            ids,
+            g[0],
+            g[1],
+            g[2],
+            width,
+            height,
+            tile,
+        )
         return gm, gc, gcol, gop, gz, None, None, None, None, None
 
 
-def composite(means2d, conics, colors, opacities, depths, radii, width: int, height: int, tile: int = 16,
-              return_contrib: bool = False):
+def composite(
+    means2d,
+    conics,
+    colors,
+    opacities,
+    depths,
+    radii,
+    width: int,
+    height: int,
+    tile: int = 16,
+    return_contrib: bool = False,
+):
     """Same contract as ``torch_backend.rasterize_tiles`` without backgrounds; float32. -> (image, alpha,
     depth, contrib dict of weight_sum / weight_max / trans_max [C,N] or None)."""
     f = lambda t: t.float().contiguous()  # noqa: E731
     image, alpha, depth, w_sum, w_max, t_max = _Composite.apply(
-        f(means2d), f(conics), f(colors), f(opacities), f(depths), radii.to(torch.int32).contiguous(), width, height,
-        tile, return_contrib)
+        f(means2d),
+        f(conics),
+        f(colors),
+        f(opacities),
+        f(depths),
+        radii.to(torch.int32).contiguous(),
+        width,
+        height,
+        tile,
+        return_contrib,
+    )
     contrib = {"weight_sum": w_sum, "weight_max": w_max, "trans_max": t_max} if return_contrib else None
     return image, alpha, depth, contrib

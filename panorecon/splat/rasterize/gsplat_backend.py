@@ -17,6 +17,7 @@ image but whose gsplat box does not, and ``means2d`` (and its gradient) agree wh
 (``tests/splat/test_rasterize_gsplat.py``, marked ``cuda``). Per-Gaussian contributions, which gsplat's kernels
 do not return, come from the pairs gsplat blended (``blended_pairs``) through ``contrib.contributions_from_pairs``.
 """
+
 from __future__ import annotations
 
 import logging
@@ -42,9 +43,17 @@ def _try_run() -> None:
         dev = torch.device("cuda")
         eye = torch.eye(4, device=dev)[None]
         K = torch.tensor([[[8.0, 0, 8], [0, 8.0, 8], [0, 0, 1]]], device=dev)
-        rasterization(torch.tensor([[0.0, 0, 2]], device=dev), torch.tensor([[1.0, 0, 0, 0]], device=dev),
-                      torch.full((1, 3), 0.3, device=dev), torch.ones(1, device=dev), torch.ones(1, 3, device=dev),
-                      eye, K, 16, 16)
+        rasterization(
+            torch.tensor([[0.0, 0, 2]], device=dev),
+            torch.tensor([[1.0, 0, 0, 0]], device=dev),
+            torch.full((1, 3), 0.3, device=dev),
+            torch.ones(1, device=dev),
+            torch.ones(1, 3, device=dev),
+            eye,
+            K,
+            16,
+            16,
+        )
         torch.cuda.synchronize()
     except Exception as e:  # a failed kernel build: report it, fall back to the other backends
         first_line = str(e).splitlines()[0] if str(e) else ""
@@ -70,8 +79,24 @@ def build_seconds() -> float | None:
     return _state.get("seconds") if available() else None
 
 
-def rasterize_gsplat(means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree, near_plane,
-                     far_plane, backgrounds, eps2d, tile_size, return_contrib: bool = False):
+def rasterize_gsplat(
+    means,
+    quats,
+    scales,
+    opacities,
+    colors,
+    viewmats,
+    Ks,
+    width,
+    height,
+    sh_degree,
+    near_plane,
+    far_plane,
+    backgrounds,
+    eps2d,
+    tile_size,
+    return_contrib: bool = False,
+):
     """-> (image [C,H,W,D], alpha [C,H,W,1], accumulated z [C,H,W,1], meta with means2d, conics, depths,
     radii [C,N] (the larger per-axis radius) and, with ``return_contrib``, weight_sum / weight_max / trans_max
     [C,N] (detached))."""
@@ -82,9 +107,25 @@ def rasterize_gsplat(means, quats, scales, opacities, colors, viewmats, Ks, widt
     # our convention: a zero-norm quaternion is the identity rotation (gsplat would normalise it to NaN)
     zero = quats.norm(dim=-1, keepdim=True) < 1e-12
     quats = torch.where(zero, torch.tensor([1.0, 0.0, 0.0, 0.0], device=quats.device, dtype=quats.dtype), quats)
-    out, alpha, meta = rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height,
-                                     near_plane=near_plane, far_plane=far_plane, eps2d=eps2d, sh_degree=sh_degree,
-                                     packed=False, tile_size=tile_size, backgrounds=backgrounds, render_mode="RGB+D")
+    out, alpha, meta = rasterization(
+        means,
+        quats,
+        scales,
+        opacities,
+        colors,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane=near_plane,
+        far_plane=far_plane,
+        eps2d=eps2d,
+        sh_degree=sh_degree,
+        packed=False,
+        tile_size=tile_size,
+        backgrounds=backgrounds,
+        render_mode="RGB+D",
+    )
     radii = meta["radii"]
     if radii.dim() == 3:  # gsplat >= 1.5 gives per-axis radii
         radii = radii.max(dim=-1).values
@@ -92,8 +133,19 @@ def rasterize_gsplat(means, quats, scales, opacities, colors, viewmats, Ks, widt
     if return_contrib:
         with torch.no_grad():
             image_ids, pixel_ids, gaussian_ids = blended_pairs(meta, width, height, tile_size)
-            result.update(contributions_from_pairs(meta["means2d"], meta["conics"], meta["opacities"],
-                                                   meta["depths"], image_ids, pixel_ids, gaussian_ids, width, height))
+            result.update(
+                contributions_from_pairs(
+                    meta["means2d"],
+                    meta["conics"],
+                    meta["opacities"],
+                    meta["depths"],
+                    image_ids,
+                    pixel_ids,
+                    gaussian_ids,
+                    width,
+                    height,
+                )
+            )
     return out[..., :-1], alpha, out[..., -1:], result  # RGB+D: the colour channels, then z
 
 
@@ -106,7 +158,17 @@ def blended_pairs(meta: dict, width: int, height: int, tile_size: int):
     C, N = means2d.shape[:2]
     T = torch.ones(C, height, width, device=means2d.device, dtype=means2d.dtype)
     flatten_ids = meta["flatten_ids"]
-    gids, pids, iids = rasterize_to_indices_in_range(0, len(flatten_ids) + 1, T, means2d, meta["conics"],
-                                                     meta["opacities"], width, height, tile_size,
-                                                     meta["isect_offsets"], flatten_ids)
+    gids, pids, iids = rasterize_to_indices_in_range(
+        0,
+        len(flatten_ids) + 1,
+        T,
+        means2d,
+        meta["conics"],
+        meta["opacities"],
+        width,
+        height,
+        tile_size,
+        meta["isect_offsets"],
+        flatten_ids,
+    )
     return iids.long(), pids.long(), gids.long() % N  # flatten_ids index the [C * N] flattened Gaussians

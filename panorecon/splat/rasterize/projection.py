@@ -7,6 +7,7 @@ the mean's view direction clamped to the image's extent plus 30 % of the half fi
 which keeps Gaussians far outside the image from exploding). radius = ceil(3 sqrt(largest eigenvalue)), at
 most 2^30 px; radius 0 marks a culled one.
 """
+
 from __future__ import annotations
 
 import torch
@@ -19,15 +20,34 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=quats.dtype, device=quats.device)
     q = torch.where(norm > 1e-12, quats / norm.clamp_min(1e-12), identity)
     w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(-1, 3, 3)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(-1, 3, 3)
 
 
-def project_gaussians(means, quats, scales, viewmats, Ks, width: int, height: int, near_plane: float = 0.01,
-                      far_plane: float = 1e10, eps2d: float = 0.3):
+def project_gaussians(
+    means,
+    quats,
+    scales,
+    viewmats,
+    Ks,
+    width: int,
+    height: int,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    eps2d: float = 0.3,
+):
     """-> means2d [C, N, 2] (pixels), conics [C, N, 3] (a, b, c of the inverse 2D covariance), depths [C, N]
     (camera z, metres), radii [C, N] int (0 = culled)."""
     R = viewmats[:, :3, :3]
@@ -64,8 +84,12 @@ def project_gaussians(means, quats, scales, viewmats, Ks, width: int, height: in
     radii = torch.ceil(3 * torch.sqrt(lam)).detach()
     means2d = torch.stack([fx * x / zs + cx, fy * y / zs + cy], -1)
     # culled: behind/near/far, degenerate, or entirely off the image
-    on_image = ((means2d[..., 0] + radii > 0) & (means2d[..., 0] - radii < width)
-                & (means2d[..., 1] + radii > 0) & (means2d[..., 1] - radii < height))
+    on_image = (
+        (means2d[..., 0] + radii > 0)
+        & (means2d[..., 0] - radii < width)
+        & (means2d[..., 1] + radii > 0)
+        & (means2d[..., 1] - radii < height)
+    )
     valid = valid & on_image.detach() & torch.isfinite(radii)
     # capped at 2^30 px so that the int32 conversion is defined for any finite radius
     radii = torch.where(valid, radii.clamp_max(2.0**30), torch.zeros_like(radii)).to(torch.int32)

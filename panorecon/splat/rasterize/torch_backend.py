@@ -5,6 +5,7 @@ by depth and composited: alpha_i = min(0.99, o_i exp(-sigma_i)), sigma_i = 0.5 d
 alpha < 1/255 or sigma < 0 contributes nothing; blending stops before the Gaussian that would bring the
 transmittance to 1e-4 or below (gsplat's rules). Works in the dtype of its inputs (float64 for gradcheck).
 """
+
 from __future__ import annotations
 
 import torch
@@ -14,8 +15,19 @@ ALPHA_MAX = 0.99
 T_MIN = 1e-4
 
 
-def rasterize_tiles(means2d, conics, colors, opacities, depths, radii, width: int, height: int, tile_size: int = 16,
-                    backgrounds=None, return_contrib: bool = False):
+def rasterize_tiles(
+    means2d,
+    conics,
+    colors,
+    opacities,
+    depths,
+    radii,
+    width: int,
+    height: int,
+    tile_size: int = 16,
+    backgrounds=None,
+    return_contrib: bool = False,
+):
     """means2d [C,N,2], conics [C,N,3], colors [C,N,D], opacities [N], depths [C,N], radii [C,N] ->
     (image [C,H,W,D], alpha [C,H,W,1], depth [C,H,W,1] accumulated z, contrib dict or None)."""
     C, N, D = colors.shape
@@ -35,10 +47,25 @@ def rasterize_tiles(means2d, conics, colors, opacities, depths, radii, width: in
             cols_img, cols_alpha, cols_depth = [], [], []
             for tx in range(0, width, tile_size):
                 tw = min(tile_size, width - tx)
-                touch = ((m2[:, 0] + r >= tx) & (m2[:, 0] - r <= tx + tw) & (m2[:, 1] + r >= ty) & (m2[:, 1] - r <= ty + th))
+                touch = (
+                    (m2[:, 0] + r >= tx) & (m2[:, 0] - r <= tx + tw) & (m2[:, 1] + r >= ty) & (m2[:, 1] - r <= ty + th)
+                )
                 hit = idx_all[order[touch[order]]]
-                img, a, z = _tile(c, hit, means2d, conics, colors, opacities, depths, tx, ty, tw, th, contrib,
-                                  None if backgrounds is None else backgrounds[c])
+                img, a, z = _tile(
+                    c,
+                    hit,
+                    means2d,
+                    conics,
+                    colors,
+                    opacities,
+                    depths,
+                    tx,
+                    ty,
+                    tw,
+                    th,
+                    contrib,
+                    None if backgrounds is None else backgrounds[c],
+                )
                 cols_img.append(img)
                 cols_alpha.append(a)
                 cols_depth.append(z)
@@ -58,8 +85,11 @@ def _tile(c, hit, means2d, conics, colors, opacities, depths, tx, ty, tw, th, co
     if len(hit) == 0:
         img = colors.new_zeros(th, tw, D) if background is None else background.expand(th, tw, D).clone()
         return img, colors.new_zeros(th, tw, 1), colors.new_zeros(th, tw, 1)
-    ii, jj = torch.meshgrid(torch.arange(th, device=dev, dtype=dt) + ty + 0.5,
-                            torch.arange(tw, device=dev, dtype=dt) + tx + 0.5, indexing="ij")
+    ii, jj = torch.meshgrid(
+        torch.arange(th, device=dev, dtype=dt) + ty + 0.5,
+        torch.arange(tw, device=dev, dtype=dt) + tx + 0.5,
+        indexing="ij",
+    )
     px = torch.stack([jj.reshape(-1), ii.reshape(-1)], -1)  # [P, 2] (x, y)
     d = px[:, None, :] - means2d[c, hit][None]  # [P, G, 2]
     a, b, cc = conics[c, hit].unbind(-1)
