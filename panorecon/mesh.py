@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cli_types import float_in, int_in, out_file
 from .geometry import PointCloud
 from .io import PanoreconInputError, atomic_write
 
@@ -151,9 +152,14 @@ def cmd_mesh(args) -> int:
 def add_mesh_parser(sub: argparse._SubParsersAction) -> None:
     m = sub.add_parser("mesh", help="a triangle mesh from a point cloud (screened Poisson, pymeshlab)")
     m.add_argument("cloud", help="a point-cloud .ply (e.g. a run's fibonacci_cloud.ply)")
-    m.add_argument("--out", required=True, help="output mesh .ply")
-    m.add_argument("--depth", type=int, default=9, help="Poisson octree depth (default 9)")
-    m.add_argument("--trim", type=float, default=0.1, help="drop vertices below this density quantile (default 0.1)")
+    m.add_argument("--out", required=True, type=out_file, help="output mesh .ply")
+    m.add_argument("--depth", type=int_in(4, 16, "Poisson depth"), default=9, help="Poisson octree depth (default 9)")
+    m.add_argument(
+        "--trim",
+        type=float_in(0.0, 0.99, "trim quantile"),
+        default=0.1,
+        help="drop vertices below this density quantile (default 0.1)",
+    )
     m.add_argument("--centre", default="0,0,0", help="panorama centre x,y,z in metres; normals face it")
     m.add_argument(
         "--scene",
