@@ -3,6 +3,8 @@
 Two views are linked when at least ``min_overlap`` ERP rays of a ``height`` x 2*height grid fall inside both
 and have valid depth in both. Views in different connected components share no equation of the fusion: their
 relative scale (and, for affine teachers, shift) is not measured but guessed, so such a result is flagged.
+A view with fewer than ``min_overlap`` valid rays (one that sees only sky, say) adds nothing to the fusion and
+cannot misplace anything: it is listed as empty, not as a group of its own.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ log = logging.getLogger("panorecon.fusion")
 
 def view_connectivity(views: Sequence[ViewDepth], height: int = 64, min_overlap: int = 16) -> dict:
     """-> {"components": int, "groups": [[view index, ...], ...] largest first, "unconnected_views": views
-    outside the largest group, "pairs": linked pairs, "min_overlap": min_overlap, "grid_height": height}."""
+    outside the largest group, "empty_views": views with fewer than ``min_overlap`` valid rays (in no group),
+    "pairs": linked pairs, "min_overlap": min_overlap, "grid_height": height}."""
     V = len(views)
     dirs = erp_directions(height, 2 * height).reshape(-1, 3)
     seen = np.zeros((V, len(dirs)), bool)
@@ -29,15 +32,19 @@ def view_connectivity(views: Sequence[ViewDepth], height: int = 64, min_overlap:
         idx, rows, cols, _ = project_erp_rays(v.camera, dirs)
         d = v.depth[rows, cols]
         seen[i, idx[v.valid[rows, cols] & np.isfinite(d)]] = True
-    counts = seen.astype(np.int32) @ seen.T.astype(np.int32)  # [V, V] shared valid rays
+    active = np.flatnonzero(seen.sum(1) >= min_overlap)
+    counts = seen[active].astype(np.int32) @ seen[active].T.astype(np.int32)  # shared valid rays
     linked = counts >= min_overlap
     np.fill_diagonal(linked, False)
-    n, label = connected_components(linked, directed=False)
-    groups = sorted(([int(i) for i in np.flatnonzero(label == c)] for c in range(n)), key=lambda g: (-len(g), g))
+    n, label = connected_components(linked, directed=False) if len(active) else (0, active)
+    groups = sorted(
+        ([int(active[i]) for i in np.flatnonzero(label == c)] for c in range(n)), key=lambda g: (-len(g), g)
+    )
     return {
         "components": int(n),
         "groups": groups,
         "unconnected_views": sorted(i for g in groups[1:] for i in g),
+        "empty_views": sorted(set(range(V)) - {int(i) for i in active}),
         "pairs": int(np.triu(linked).sum()),
         "min_overlap": min_overlap,
         "grid_height": height,

@@ -79,3 +79,20 @@ def test_result_rows_and_results_md_carry_the_flag(tmp_path):
     assert rec["view_components"] == 2 and "do not connect" in rec["warning"]
     write_results_md(pd.DataFrame([rec]), Suite("s", "t", [row], ["label"]), tmp_path, 1.0)
     assert "**WARNING** (two, bedroom): the views do not connect" in (tmp_path / "results.md").read_text()
+
+
+def test_a_view_that_sees_only_sky_is_empty_not_unconnected():
+    """Outdoors the views near the zenith hold no valid depth: they add no equation and misplace nothing, so
+    they are listed as empty and do not raise the warning (a view with depth and no overlap still does)."""
+    from panorecon.fusion.connectivity import connectivity_warning, view_connectivity
+    from panorecon.geometry import ViewDepth, centred_camera, make_layout
+    from panorecon.teachers import get_teacher
+
+    scene = load_scene("bedroom", 128)
+    layout = make_layout("fibonacci", 20)
+    cams = [centred_camera(f, 32, layout.fov_deg) for f in layout.directions]
+    views = get_teacher("sim:clean").predict_views(scene, cams)
+    sky = ViewDepth(views[0].camera, np.full_like(views[0].depth, np.nan), "z", np.zeros_like(views[0].valid))
+    conn = view_connectivity([sky, *views[1:]])
+    assert conn["empty_views"] == [0] and conn["components"] == 1 and connectivity_warning(conn) is None
+    assert view_connectivity(views)["empty_views"] == []
