@@ -254,6 +254,7 @@ def cmd_train(args) -> int:
     from .device import resolve_device
     from .pipeline import teacher_depth_fn
     from .scenes import scene_from_args
+    from .sources import cloud_scale
     from .splat.trainer import TrainConfig, train
 
     device = resolve_device(getattr(args, "device", "auto"))
@@ -262,7 +263,7 @@ def cmd_train(args) -> int:
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
     scene = scene_from_args(args)
     out = Path(args.out)
-    pc, _ = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
+    pc, report = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
     m = train(
         scene,
         pc,
@@ -272,6 +273,7 @@ def cmd_train(args) -> int:
         progress=not args.no_progress,
         inputs={"source": args.source, "teacher": args.teacher, "views": args.views, "depth": args.depth},
         device=device,
+        heldout_scale=cloud_scale(report),
     )
     held = m["held-out"]
     held_txt = (

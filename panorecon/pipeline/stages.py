@@ -255,6 +255,7 @@ def _compute_train(
     cache: StageCache, row: Row, key: str, points: dict, progress: bool, provenance: dict | None, device
 ) -> dict:
     from ..geometry import PointCloud
+    from ..sources import cloud_scale
     from ..splat.trainer import TrainConfig, train
 
     scene = load_row_scene(row.scene, row.width, cache, row.depth)
@@ -276,6 +277,7 @@ def _compute_train(
         progress=progress,
         inputs=inputs,
         device=device or "auto",
+        heldout_scale=cloud_scale(points.get("report") or {}),
     )
     record = {
         "stage": "train",

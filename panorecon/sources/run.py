@@ -133,3 +133,11 @@ def run_source(
     report["seconds"] = seconds
     report["peak_rss_mb"] = peak_rss_mb()
     return pc, report
+
+
+def cloud_scale(report: dict) -> float:
+    """truth / cloud: the scale a source's report measured by aligning its depth to the truth (median
+    alignment; 1 for metric teachers, for clouds without a depth map and for scenes without truth)."""
+    depth = report.get("depth")
+    scale = depth.get("scale") if isinstance(depth, dict) else None
+    return float(scale) if isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0 else 1.0

@@ -183,6 +183,18 @@ def _evaluate_masked(model, views, cfg, backend) -> dict:
     }
 
 
+def _in_cloud_frame(view: LabelView, scale: float) -> LabelView:
+    """A held-out view moved into a cloud that is the truth divided by ``scale``: the camera at position / scale
+    (same rotation and intrinsics) sees that cloud exactly as the true camera sees the truth; z-depth / scale."""
+    if scale == 1.0:
+        return view
+    viewmat = view.camera.viewmat.copy()
+    viewmat[:3, 3] /= scale
+    cam = dataclasses.replace(view.camera, viewmat=viewmat)
+    depth = None if view.depth is None else (view.depth / scale).astype(np.float32)
+    return dataclasses.replace(view, camera=cam, depth=depth)
+
+
 def best_heldout(history: list[dict]) -> dict | str:
     """The history sample with the highest held-out PSNR: its iteration, training seconds, Gaussians and PSNR
     (what a run's quality-against-time reads as), or 'n/a: <reason>' when no sample has one."""
@@ -210,13 +222,17 @@ def train(
     progress: bool = True,
     inputs: dict | None = None,
     device: str | torch.device = "auto",
+    heldout_scale: float = 1.0,
 ) -> dict:
     """Fit Gaussians initialised from ``point_cloud`` to pseudo-labels of ``scene``; writes point_cloud.ply
     (3DGS layout), cameras.json (pseudo-label and held-out cameras: viewmat, K, size), renders/, metrics.json and
     ckpt.pt, resumed (on any device) when present and written for the same scene, width, config, cloud and
     ``inputs`` (e.g. source and teacher names; see ``checkpoint.py``). The model, labels, losses, optimizer and
     strategy live on ``device`` ('auto': CUDA when present); the step loop reads nothing back to the host except
-    every ``history_every`` steps."""
+    every ``history_every`` steps. ``heldout_scale``: the cloud's scale against the truth (truth = scale x cloud,
+    the source's median depth alignment; 1 for metric clouds): held-out cameras are placed at their true positions
+    divided by it, so a scale-ambiguous cloud is judged in its own frame (a similarity alignment), not on its
+    arbitrary global scale."""
     from tqdm import tqdm
 
     cfg = config
@@ -243,6 +259,9 @@ def train(
         heldout = make_panorama_heldout_views(
             scene, heldout_panoramas(scene), cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed
         )
+    if not (np.isfinite(heldout_scale) and heldout_scale > 0):
+        raise ValueError(f"heldout_scale={heldout_scale!r}: expected a finite scale > 0 (truth / cloud)")
+    heldout = [_in_cloud_frame(v, heldout_scale) for v in heldout]
     env = sky_environment(scene) if cfg.sky == "panorama" else None
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)
@@ -265,7 +284,7 @@ def train(
     strategy = STRATEGIES[cfg.strategy](refine_stop=cfg.iters // 2)
     start, history = 0, []
     ckpt = out / "ckpt.pt"
-    keys = checkpoint_inputs(scene, point_cloud, cfg.digest(), inputs)
+    keys = checkpoint_inputs(scene, point_cloud, cfg.digest(), {**(inputs or {}), "heldout_scale": heldout_scale})
     state = load_checkpoint(ckpt, keys, cfg.iters)
     torch.manual_seed(cfg.seed)  # split sampling; a resumed run continues the stored generator states
     if state is not None:
@@ -415,6 +434,7 @@ def train(
         **device_record(dev),
         history=history,
         heldout_best=best_heldout(history),
+        heldout_scale=heldout_scale,
         config=dataclasses.asdict(cfg),
     )
     write_json(out / "metrics.json", metrics)

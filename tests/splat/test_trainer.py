@@ -263,3 +263,41 @@ def test_adaptive_training_resumes_exactly(setup, tmp_path, monkeypatch):
     assert len(a) == len(b)
     for x, y in zip(a.parameters(), b.parameters()):
         torch.testing.assert_close(x, y, atol=1e-6, rtol=1e-5)
+
+
+def test_held_out_views_are_judged_in_the_clouds_own_scale(setup, tmp_path):
+    """A cloud known up to scale (the sim teachers' per-view scales) is judged in its own frame: moved into a
+    cloud that is the truth / s, a held-out camera at position / s sees it as the true camera sees the truth
+    (pinhole projection is scale-invariant), so the held-out score does not depend on the arbitrary scale."""
+    from panorecon.geometry import PointCloud
+    from panorecon.splat.labels import make_heldout_views
+    from panorecon.splat.rasterize import rasterize
+    from panorecon.splat.trainer import _in_cloud_frame
+
+    scene, pc, depth_fn = setup
+    g = torch.Generator().manual_seed(0)
+    n = 500
+    means = torch.randn(n, 3, generator=g) * 1.5
+    quats, scales = torch.randn(n, 4, generator=g), torch.rand(n, 3, generator=g) * 0.1 + 0.02
+    opac, cols = torch.rand(n, generator=g) * 0.8 + 0.1, torch.rand(n, 3, generator=g)
+    (v,) = make_heldout_views(scene, 1, 32)
+    s = 2.5
+    moved = _in_cloud_frame(v, s)
+    np.testing.assert_allclose(moved.camera.position, v.camera.position / s, atol=1e-12)
+
+    def render(view, k):
+        V = torch.tensor(view.camera.viewmat[None], dtype=torch.float32)
+        K = torch.tensor(view.camera.K[None], dtype=torch.float32)
+        return rasterize(means / k, quats, scales / k, opac, cols, V, K, 32, 32, backend="torch")[0]
+
+    torch.testing.assert_close(render(moved, s), render(v, 1.0), atol=1e-5, rtol=1e-4)
+    # the trainer: a cloud halved and told so scores (nearly) as the metric cloud; told nothing, it does not
+    c = dict(iters=20, heldout=4, checkpoint_every=0, history_every=0, sh_degree=0, init_pixels_per_point=0)
+    half = PointCloud(pc.xyz / 2, pc.rgb)
+    full = train(scene, pc, cfg(**c), tmp_path / "full", depth_fn, progress=False)["held-out"]["psnr"]
+    aligned = train(scene, half, cfg(**c), tmp_path / "a", depth_fn, progress=False, heldout_scale=2.0)
+    blind = train(scene, half, cfg(**c), tmp_path / "b", depth_fn, progress=False)["held-out"]["psnr"]
+    assert abs(aligned["held-out"]["psnr"] - full) < 0.3 and aligned["heldout_scale"] == 2.0
+    assert blind < aligned["held-out"]["psnr"] - 0.1
+    with pytest.raises(ValueError, match="heldout_scale"):
+        train(scene, pc, cfg(**c), tmp_path / "bad", depth_fn, progress=False, heldout_scale=0.0)
