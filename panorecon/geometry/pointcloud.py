@@ -192,26 +192,6 @@ def _open3d_fields(path: Path) -> dict:
     return out
 
 
-_PLY_SIZES = {
-    "char": 1,
-    "uchar": 1,
-    "int8": 1,
-    "uint8": 1,
-    "short": 2,
-    "ushort": 2,
-    "int16": 2,
-    "uint16": 2,
-    "int": 4,
-    "uint": 4,
-    "int32": 4,
-    "uint32": 4,
-    "float": 4,
-    "float32": 4,
-    "double": 8,
-    "float64": 8,
-}
-
-
 def check_ply_header(path: Path) -> int:
     """Check a PLY's header (and, for a binary file whose elements have no list properties, its exact size)
     -> the vertex count. Raises ``PanoreconInputError`` naming the file and what is wrong."""
@@ -237,7 +217,8 @@ def check_ply_header(path: Path) -> int:
             elif w[0] == "property" and elements:
                 if elements[-1][0] == "vertex":
                     vertex_props.add(w[-1])
-                size = None if w[1] == "list" or elements[-1][2] is None else _PLY_SIZES.get(w[1])
+                scalar = w[1] in _PLY_TYPES and elements[-1][2] is not None
+                size = np.dtype(_PLY_TYPES[w[1]]).itemsize if scalar else None
                 elements[-1][2] = None if size is None else elements[-1][2] + size
         except (IndexError, ValueError):
             raise PanoreconInputError(f"point cloud {path}: malformed PLY header line {ln!r}") from None
