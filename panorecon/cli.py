@@ -121,7 +121,7 @@ def cmd_demo(args) -> int:
     training from it (point_cloud.ply, renders/, metrics.json), held-out renders at 256 px and the panorama
     rendered back from the Gaussians (panorama.png). Its settings are explicit here, not train's defaults."""
     from .demo import demo_pictures
-    from .scenes import DEFAULT_SCENE, load_scene
+    from .scenes import DEFAULT_SCENE, scene_from_args
 
     t0 = time.perf_counter()
     out = Path(args.out)
@@ -174,7 +174,7 @@ def cmd_demo(args) -> int:
             clip_z=clip_z,
         )
     )
-    p = demo_pictures(load_scene(scene, args.width), out)
+    p = demo_pictures(scene_from_args(argparse.Namespace(scene=scene, width=args.width, **depth)), out)
     print(
         f"panorama rendered back from the Gaussians: PSNR {p['panorama_psnr']:.2f} dB against the input -> "
         f"{out / 'panorama.png'}; held-out renders at 256 px -> {out / 'renders'}; demo took "
