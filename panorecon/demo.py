@@ -20,18 +20,17 @@ def demo_pictures(
     OUT/panorama.png (input above, render from the centre below). Returns the panorama's PSNR (dB)."""
     import json
 
-    from .splat.labels import make_heldout_views
+    from .splat.labels import in_cloud_frame, make_heldout_views
     from .splat.panorama import render_panorama
     from .splat.ply import load_ply
     from .splat.rasterize import rasterize
-    from .splat.trainer import _in_cloud_frame
 
     out = Path(out)
     model = load_ply(out / "point_cloud.ply")
     scale = json.loads((out / "metrics.json").read_text()).get("heldout_scale", 1.0)  # as the trainer placed them
     if scene.world is not None:
         for k, v in enumerate(make_heldout_views(scene, views, size, fov_deg, seed)):
-            v = _in_cloud_frame(v, scale)
+            v = in_cloud_frame(v, scale)
             V = torch.tensor(v.camera.viewmat[None], dtype=torch.float32)
             K = torch.tensor(v.camera.K[None], dtype=torch.float32)
             with torch.no_grad():

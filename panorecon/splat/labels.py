@@ -8,6 +8,7 @@ renders from positions away from the centre (inside the scene's free space), nev
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -85,6 +86,18 @@ def make_heldout_views(scene, n_views: int, size: int, fov_deg: float = 60.0, se
             LabelView(cam, r.rgb.astype(np.float32) / 255.0, np.where(r.sky, np.nan, r.depth_z).astype(np.float32))
         )
     return views
+
+
+def in_cloud_frame(view: LabelView, scale: float) -> LabelView:
+    """A held-out view moved into a cloud that is the truth divided by ``scale``: the camera at position / scale
+    (same rotation and intrinsics) sees that cloud exactly as the true camera sees the truth; z-depth / scale."""
+    if scale == 1.0:
+        return view
+    viewmat = view.camera.viewmat.copy()
+    viewmat[:3, 3] /= scale
+    cam = dataclasses.replace(view.camera, viewmat=viewmat)
+    depth = None if view.depth is None else (view.depth / scale).astype(np.float32)
+    return dataclasses.replace(view, camera=cam, depth=depth)
 
 
 COVISIBLE_REL_TOL = 0.05

@@ -19,7 +19,7 @@ from ..io import peak_rss_mb, write_image, write_json
 from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import MODEL_KEYS, checkpoint_inputs, load_checkpoint, save_checkpoint
 from .initial import points_for_resolution, sky_environment, thin_cloud, view_background
-from .labels import LabelView, make_heldout_views, make_panorama_heldout_views, make_pseudo_labels
+from .labels import LabelView, in_cloud_frame, make_heldout_views, make_panorama_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
 from .model import GaussianModel
 from .ply import save_ply
@@ -183,18 +183,6 @@ def _evaluate_masked(model, views, cfg, backend) -> dict:
     }
 
 
-def _in_cloud_frame(view: LabelView, scale: float) -> LabelView:
-    """A held-out view moved into a cloud that is the truth divided by ``scale``: the camera at position / scale
-    (same rotation and intrinsics) sees that cloud exactly as the true camera sees the truth; z-depth / scale."""
-    if scale == 1.0:
-        return view
-    viewmat = view.camera.viewmat.copy()
-    viewmat[:3, 3] /= scale
-    cam = dataclasses.replace(view.camera, viewmat=viewmat)
-    depth = None if view.depth is None else (view.depth / scale).astype(np.float32)
-    return dataclasses.replace(view, camera=cam, depth=depth)
-
-
 def best_heldout(history: list[dict]) -> dict | str:
     """The history sample with the highest held-out PSNR: its iteration, training seconds, Gaussians and PSNR
     (what a run's quality-against-time reads as), or 'n/a: <reason>' when no sample has one."""
@@ -261,7 +249,7 @@ def train(
         )
     if not (np.isfinite(heldout_scale) and heldout_scale > 0):
         raise ValueError(f"heldout_scale={heldout_scale!r}: expected a finite scale > 0 (truth / cloud)")
-    heldout = [_in_cloud_frame(v, heldout_scale) for v in heldout]
+    heldout = [in_cloud_frame(v, heldout_scale) for v in heldout]
     env = sky_environment(scene) if cfg.sky == "panorama" else None
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)

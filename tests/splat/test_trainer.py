@@ -270,9 +270,8 @@ def test_held_out_views_are_judged_in_the_clouds_own_scale(setup, tmp_path):
     cloud that is the truth / s, a held-out camera at position / s sees it as the true camera sees the truth
     (pinhole projection is scale-invariant), so the held-out score does not depend on the arbitrary scale."""
     from panorecon.geometry import PointCloud
-    from panorecon.splat.labels import make_heldout_views
+    from panorecon.splat.labels import in_cloud_frame, make_heldout_views
     from panorecon.splat.rasterize import rasterize
-    from panorecon.splat.trainer import _in_cloud_frame
 
     scene, pc, depth_fn = setup
     g = torch.Generator().manual_seed(0)
@@ -282,7 +281,7 @@ def test_held_out_views_are_judged_in_the_clouds_own_scale(setup, tmp_path):
     opac, cols = torch.rand(n, generator=g) * 0.8 + 0.1, torch.rand(n, 3, generator=g)
     (v,) = make_heldout_views(scene, 1, 32)
     s = 2.5
-    moved = _in_cloud_frame(v, s)
+    moved = in_cloud_frame(v, s)
     np.testing.assert_allclose(moved.camera.position, v.camera.position / s, atol=1e-12)
 
     def render(view, k):
