@@ -75,6 +75,9 @@ class FusionConfig:
     border_smooth: float = 0.1  # membrane weight (gradient = 0) where a border pixel is filled, relative to w_grad
     border_laplacian: float = 1.0  # Laplacian = 0 weight where a border pixel is filled, relative to w_lap
     cg_device: str | None = None  # None: SciPy's CG; "cpu" / "cuda": the same Jacobi-PCG in torch float64 there
+    cg_precision: str = (
+        "mixed"  # SciPy Jacobi-PCG: "mixed" (float32 products, float64 check and refinement) or "double"
+    )
     sampling: str = "linear"  # warp: "linear" (edge-aware bilinear, footprint-averaged) or "nearest" (warp.py)
     supersample: int | None = None  # sub-rays per ERP pixel side, finest level, "linear"; None: from the footprint
     edge_log: float = 0.1  # "linear" leaves out taps further than this (log distance) from the nearest one
@@ -99,6 +102,8 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.edge_log={self.edge_log!r}: expected > 0 (log distance)")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
+        if self.cg_precision not in ("mixed", "double"):
+            raise ValueError(f"FusionConfig.cg_precision={self.cg_precision!r}: expected 'mixed' or 'double'")
         if self.cg_device is not None and self.preconditioner != "jacobi":
             raise ValueError(
                 f"FusionConfig.cg_device={self.cg_device!r}: the torch CG has the Jacobi preconditioner "
@@ -206,19 +211,22 @@ def _assemble(level: _Level, cfg: FusionConfig, sparse: bool):
         r0, r1 = max(o.index.min() // W - 1, 0), min(o.index.max() // W + 1, H - 1)
         band = slice(r0 * W, (r1 + 1) * W)
         hb = r1 - r0 + 1
-        L = np.full((hb, W), np.nan)
-        C = np.zeros((hb, W))
+        # dense band arrays: log distance (0 where unused) and confidence (0 where unused; > 0 where used), so an
+        # equation's weight, the smallest confidence of its taps, is 0 exactly where a tap is missing
+        L, C = np.zeros((hb, W)), np.zeros((hb, W))
         use = ~o.border  # border values enter no difference equation
         L.ravel()[o.index[use] - r0 * W] = o.log_distance[use]
         C.ravel()[o.index[use] - r0 * W] = o.confidence[use]
-        # pairs / stencils with an unseen tap get weight 0 (no masked compaction: whole-band arithmetic)
-        Lr = np.roll(L, -1, axis=1)
-        _accumulate(wgx[band], tgx[band], Lr - L, np.minimum(C, np.roll(C, -1, axis=1)))
+        Lr, Cr = np.roll(L, -1, axis=1), np.roll(C, -1, axis=1)
+        cx = np.minimum(C, Cr)
+        _accumulate(wgx[band], tgx[band], Lr - L, cx)
         if hb > 1:
             _accumulate(wgy[r0 * W : r1 * W], tgy[r0 * W : r1 * W], L[1:] - L[:-1], np.minimum(C[1:], C[:-1]))
         if hb > 2:
+            # a Laplacian row carries its centre's confidence when all five taps are used
+            whole = np.minimum(np.minimum(cx, np.roll(cx, 1, axis=1))[1:-1], np.minimum(C[:-2], C[2:])) > 0
             lv = (Lr + np.roll(L, 1, axis=1) - 4 * L)[1:-1] + L[:-2] + L[2:]
-            _accumulate(wl[(r0 + 1) * W : r1 * W], tl[(r0 + 1) * W : r1 * W], lv, C[1:-1])
+            _accumulate(wl[(r0 + 1) * W : r1 * W], tl[(r0 + 1) * W : r1 * W], lv, np.where(whole, C[1:-1], 0.0))
         data_w.append(cfg.w_data * o.confidence * area[o.index] * np.where(o.border, cfg.border_anchor, 1.0))
     _add_fill(border & ~reliable, level.seen, H, W, wgx, wgy, wl, cfg.border_smooth, cfg.border_laplacian)
     # Laplacian rows exist for interior rows only
@@ -286,11 +294,10 @@ def _add_fill(
 
 
 def _accumulate(weight_sum: np.ndarray, target_sum: np.ndarray, value: np.ndarray, conf: np.ndarray) -> None:
-    """weight_sum += conf, target_sum += conf * value where value is finite (in place, flat views)."""
-    ok = np.isfinite(value).ravel()
-    c = np.where(ok, conf.ravel(), 0.0)
-    weight_sum += c
-    target_sum += c * np.where(ok, value.ravel(), 0.0)
+    """weight_sum += conf, target_sum += conf * value (in place, flat views; ``value`` is finite, and arbitrary
+    where ``conf`` is 0)."""
+    weight_sum += conf.ravel()
+    target_sum += (conf * value).ravel()
 
 
 def _data_rhs(level: _Level, data_w, s: np.ndarray) -> np.ndarray:
@@ -365,6 +372,34 @@ def _solve(A, b, x0, tol: float, maxiter: int, M):
     return x, its[0], float(np.linalg.norm(A @ x - b) / bn)
 
 
+def _solve_mixed(A: StencilNormalOperator, b, x0, tol: float, maxiter: int):
+    """``_solve`` with the Jacobi-PCG run on the float32 operator (half the memory traffic per iteration), then
+    checked in float64: while the float64 relative residual is above ``tol``, the float32 CG solves for the
+    correction (iterative refinement, at most 3 rounds; then float64 CG from there). Same stopping rule as the
+    float64 solve: ||A x - b|| <= tol ||b|| in float64. -> (x float64, iterations, relative residual)."""
+    bn = np.linalg.norm(b) or 1.0
+    A32 = A.astype(np.float32)
+    M32 = sp.diags((1.0 / A.diagonal()).astype(np.float32))
+    x = np.asarray(x0, np.float64).copy()
+    r = b - A @ x
+    its = 0
+    for _ in range(3):
+        rn = np.linalg.norm(r)
+        if rn <= tol * bn or its >= maxiter:
+            return x, its, float(rn / bn)
+        # the correction e solves A e = r to the tolerance that brings ||r - A e|| to tol ||b||
+        e, k, _ = _solve(
+            A32, r.astype(np.float32), np.zeros_like(r, np.float32), min(0.5, tol * bn / rn), maxiter - its, M32
+        )
+        x += e
+        r = b - A @ x
+        its += k
+    if np.linalg.norm(r) > tol * bn and its < maxiter:
+        x, k, _ = _solve(A, b, x, tol, maxiter - its, sp.diags(1.0 / A.diagonal()))
+        its += k
+    return x, its, float(np.linalg.norm(A @ x - b) / bn)
+
+
 def _solve_torch(A: StencilNormalOperator, b, x0, tol: float, maxiter: int, device):
     """``_solve``'s Jacobi-PCG in torch float64 on ``device`` (same stopping rule as SciPy: ||r|| <= tol ||b||,
     at most ``maxiter`` iterations) -> (x as NumPy, iterations, relative residual)."""
@@ -422,7 +457,13 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         dists, view_shift, affine_report = align_affine_views(views)
     else:
         dists, view_shift, affine_report = [v.to_distance() for v in views], np.zeros(len(views)), None
-    solver = f"pcg+{cfg.preconditioner}" + ("" if cfg.cg_device is None else f" (torch, {cfg.cg_device})")
+    solver = f"pcg+{cfg.preconditioner}" + (
+        f" (torch, {cfg.cg_device})"
+        if cfg.cg_device is not None
+        else " (float32 products, float64 refinement)"
+        if cfg.preconditioner == "jacobi" and cfg.cg_precision == "mixed"
+        else ""
+    )
     report = {
         "solver": f"{solver}, coarse-to-fine",
         "levels": [],
@@ -447,16 +488,18 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
             x = _upsample(x, prev_seen, prev_h, h)
         its_total, resid = 0, float("nan")
         torch_cg = cfg.cg_device is not None and not direct
-        M = None if direct or torch_cg else _preconditioner(A, cfg)
+        mixed = not (direct or torch_cg) and cfg.preconditioner == "jacobi" and cfg.cg_precision == "mixed"
+        M = None if direct or torch_cg or mixed else _preconditioner(A, cfg)
         finest = h == height
         tol = cfg.tol if finest else max(cfg.tol, cfg.coarse_tol)
         for _ in range(max(1, cfg.scale_iters) if (h <= cfg.scale_max_height or li == 0) else 1):
             rhs = b0 + _data_rhs(level, data_w, s)
-            x, its, resid = (
-                _solve_torch(A, rhs, x, tol, cfg.maxiter, cfg.cg_device)
-                if torch_cg
-                else _solve(A, rhs, x, tol, cfg.maxiter, M)
-            )
+            if torch_cg:
+                x, its, resid = _solve_torch(A, rhs, x, tol, cfg.maxiter, cfg.cg_device)
+            elif mixed:
+                x, its, resid = _solve_mixed(A, rhs, x, tol, cfg.maxiter)
+            else:
+                x, its, resid = _solve(A, rhs, x, tol, cfg.maxiter, M)
             its_total += its
             if h > cfg.scale_max_height and li > 0:
                 break

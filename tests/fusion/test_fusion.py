@@ -300,7 +300,7 @@ def test_stacked_operator_matches_its_parts():
 
 def _torch_vs_scipy(fib20, device):
     views = make_views(fib20, 64, np.random.default_rng(15), noise=0.02)
-    ref = fuse_views(views, 128, 256, FusionConfig(levels=2))
+    ref = fuse_views(views, 128, 256, FusionConfig(levels=2, cg_precision="double"))
     got = fuse_views(views, 128, 256, FusionConfig(levels=2, cg_device=device))
     assert not ref.report["levels"][1]["direct"] and ref.report["levels"][1]["iterations"] > 5
     assert "torch" in got.report["solver"]
@@ -325,9 +325,41 @@ def test_torch_cg_on_cuda_equals_the_scipy_cg(fib20):
     _torch_vs_scipy(fib20, "cuda")
 
 
+@pytest.mark.parametrize("tol", [1e-3, 1e-9])
+def test_mixed_precision_cg_meets_the_float64_tolerance(fib20, tol):
+    """float32 products with a float64 check: the float64 relative residual ends at or below ``tol`` on every level,
+    also where float32 alone cannot get there (1e-9 is far below float32's resolution: refinement rounds do it), and the
+    solution is the float64 CG's to within what ``tol`` allows."""
+    views = make_views(fib20, 64, np.random.default_rng(15), noise=0.02)
+    cfg = dict(levels=2, tol=tol, coarse_tol=tol)
+    ref = fuse_views(views, 128, 256, FusionConfig(cg_precision="double", **cfg))
+    got = fuse_views(views, 128, 256, FusionConfig(**cfg))
+    assert "float32" in got.report["solver"] and "float32" not in ref.report["solver"]
+    assert not got.report["levels"][1]["direct"]
+    for lv in got.report["levels"]:
+        assert lv["residual"] <= tol
+    np.testing.assert_allclose(got.distance, ref.distance, rtol=max(100 * tol, 1e-6))  # float32 output
+
+
+def test_float32_operator_equals_the_float64_one():
+    from panorecon.fusion.operators import StencilNormalOperator
+
+    rng = np.random.default_rng(4)
+    H, W = 9, 14
+    op = StencilNormalOperator(
+        H, W, rng.random(H * W), rng.random((H - 1) * W), rng.random((H - 2) * W), rng.random(H * W)
+    )
+    x = rng.standard_normal(H * W)
+    y32 = op.astype(np.float32) @ x.astype(np.float32)
+    assert y32.dtype == np.float32
+    np.testing.assert_allclose(y32, op @ x, rtol=1e-5, atol=1e-5)
+
+
 def test_torch_cg_refuses_amg():
     with pytest.raises(ValueError, match="Jacobi"):
         FusionConfig(cg_device="cpu", preconditioner="amg").check()
+    with pytest.raises(ValueError, match="cg_precision"):
+        FusionConfig(cg_precision="half").check()
 
 
 class TestWarp:
