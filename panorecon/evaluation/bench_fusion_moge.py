@@ -160,7 +160,12 @@ def one_run(method: str, truth_path: str, layout: str, condition: str, seed: int
     }
 
 
-VARIANTS = {"nearest": {"sampling": "nearest"}, "linear-1": {"supersample": 1}, "linear-2": {"supersample": 2}}
+VARIANTS = {
+    "nearest": {"sampling": "nearest"},
+    "linear-1": {"supersample": 1},
+    "linear-2": {"supersample": 2},
+    "float64-cg": {"cg_precision": "double"},  # the CG before mixed precision
+}
 
 
 def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr) -> list[dict]:

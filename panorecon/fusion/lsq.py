@@ -24,7 +24,9 @@ sparse matrix), then Jacobi-preconditioned conjugate gradients on the matrix-fre
 (``operators.StencilNormalOperator``: array shifts, no assembly; optionally pyamg smoothed-aggregation AMG on
 the assembled matrix; with ``cg_device`` the same Jacobi-PCG runs in torch, on a GPU when asked), warm-started
 from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent), its
-gauge fixed by mean(s) = 0; metric teachers keep s = 0. Solves run in float64; the output is float32.
+gauge fixed by mean(s) = 0; metric teachers keep s = 0. Systems are assembled and checked in float64: the
+Jacobi-PCG's stencil products run in float32 (``cg_precision='mixed'``: half the memory traffic) with the
+residual recomputed in float64 and refined until it meets ``tol`` there; the output is float32.
 Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``). l_i is the
 view's log distance warped onto the level's ERP grid (``warp.py``; ``FusionConfig.sampling``).
 """
