@@ -230,13 +230,21 @@ def project_erp_rays(camera: PinholeCamera, directions: np.ndarray, subpixel: bo
     """Which ERP rays [M, 3] (unit) fall inside the view: (flat ray index [K], pixel row [K], pixel col [K],
     cos of the angle to the optical axis [K]); the pixel is the one whose area contains the ray (nearest).
     ``subpixel``: also the ray's pixel-centre coordinates (x [K], y [K]; pixel (i, j) is centred at x=j, y=i)."""
-    local = directions @ camera.rotation_c2w  # camera-frame components
-    z = local[:, 2]
-    front = np.flatnonzero(z > 1e-6)
-    z = z[front]
-    u = camera.K[0, 0] * local[front, 0] / z + camera.K[0, 2]
-    v = camera.K[1, 1] * local[front, 1] / z + camera.K[1, 2]
+    R = camera.rotation_c2w
+    z = directions @ R[:, 2]  # camera-frame z; x and y only for the rays that can be in the image
+    front = np.flatnonzero(z > max(1e-6, _cos_widest(camera) - 1e-6))
+    z, d = z[front], directions[front]
+    u = camera.K[0, 0] * (d @ R[:, 0]) / z + camera.K[0, 2]
+    v = camera.K[1, 1] * (d @ R[:, 1]) / z + camera.K[1, 2]
     inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
     front, u, v = front[inside], u[inside], v[inside]
     out = (front, v.astype(np.int64), u.astype(np.int64), z[inside])
     return out + (u - 0.5, v - 0.5) if subpixel else out
+
+
+def _cos_widest(camera: PinholeCamera) -> float:
+    """Cosine of the widest angle between the optical axis and a ray through the image (at a corner): unit rays
+    with a smaller camera-frame z fall outside it."""
+    nx = (np.array([0.0, camera.width]) - camera.K[0, 2]) / camera.K[0, 0]
+    ny = (np.array([0.0, camera.height]) - camera.K[1, 2]) / camera.K[1, 1]
+    return float(1.0 / np.sqrt(1.0 + np.max(nx**2) + np.max(ny**2)))

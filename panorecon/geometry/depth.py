@@ -44,13 +44,12 @@ class ViewDepth:
     def to_distance(self) -> np.ndarray:
         """Ray distance [h, w] float32 (NaN where invalid or non-positive). For ``affine`` views this is
         the distance implied by the raw values, before any scale/shift alignment."""
-        factor = self.camera.z_to_distance_factor().astype(np.float32)
         with np.errstate(divide="ignore", invalid="ignore"):
             if self.kind == "distance":
                 d = self.depth.copy()
             elif self.kind == "z":
-                d = self.depth * factor
+                d = self.depth * self.camera.z_to_distance_factor().astype(np.float32)
             else:
-                d = factor / self.depth
+                d = self.camera.z_to_distance_factor().astype(np.float32) / self.depth
         d[~self.valid | ~(d > 0) | ~np.isfinite(d)] = np.nan
         return d

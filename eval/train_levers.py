@@ -1,0 +1,69 @@
+"""One trainer lever at a time on issue 19's setting: bedroom at 512 wide, the fibonacci cloud from
+``sim:relative``, 240 pseudo-labels of 256², the ``cpu`` backend, ``train``'s defaults otherwise; any
+``TrainConfig`` field changed by ``key=value``. Prints one JSON line (held-out PSNR, training seconds, Gaussians,
+the best history sample and the history as (iteration, seconds, held-out PSNR)).
+
+    python eval/train_levers.py OUT [key=value ...] [--threads N]
+    python eval/train_levers.py out/ref10k iters=10000 init_pixels_per_point=0 --threads 1
+
+The cloud is the one ``panorecon train`` would start from (``run_source`` with the same fusion settings);
+held-out cameras are placed in the cloud's scale exactly as ``panorecon train`` places them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+
+
+def main(argv=None) -> dict:
+    import torch
+
+    from panorecon.pipeline import teacher_depth_fn
+    from panorecon.pipeline.stages import fusion_config_for
+    from panorecon.scenes import load_scene
+    from panorecon.sources import cloud_scale, run_source
+    from panorecon.splat.trainer import TrainConfig, train
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out")
+    ap.add_argument("overrides", nargs="*", help="TrainConfig field=value")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    args = ap.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    cfg = TrainConfig(res=256, labels=240, backend="cpu")
+    types = {f.name: type(f.default) for f in dataclasses.fields(TrainConfig)}
+    for item in args.overrides:
+        key, _, value = item.partition("=")
+        if key not in types:
+            ap.error(f"{item!r}: {key!r} is not a TrainConfig field ({', '.join(types)})")
+        setattr(cfg, key, types[key](value))
+    scene = load_scene("bedroom", 512)
+    pc, report = run_source(scene, "fibonacci", "sim:relative", None, fusion_config_for(torch.device("cpu")))
+    m = train(
+        scene,
+        pc,
+        cfg,
+        args.out,
+        teacher_depth_fn(scene, "sim:relative"),
+        progress=False,
+        device="cpu",
+        heldout_scale=cloud_scale(report),
+    )
+    row = {
+        "out": args.out,
+        "overrides": args.overrides,
+        "heldout_psnr": m["held-out"]["psnr"],
+        "train_s": m["seconds"]["train"],
+        "gaussians": m["gaussians"],
+        "heldout_best": m["heldout_best"],
+        "history": [(h["iteration"], round(h["seconds"], 1), round(h["heldout_psnr"], 2)) for h in m["history"]],
+    }
+    print(json.dumps(row))
+    return row
+
+
+if __name__ == "__main__":
+    main()
