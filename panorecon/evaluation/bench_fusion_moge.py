@@ -165,6 +165,7 @@ VARIANTS = {
     "linear-1": {"supersample": 1},
     "linear-2": {"supersample": 2},
     "float64-cg": {"cg_precision": "double"},  # the CG before mixed precision
+    "coarse-start": {"warm_start": "coarse"},  # each level's CG started from the coarser solution only
 }
 
 

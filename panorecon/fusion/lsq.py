@@ -23,12 +23,15 @@ is sparse SPD (13-point stencil), solved coarse to fine: a direct solve at the c
 sparse matrix), then Jacobi-preconditioned conjugate gradients on the matrix-free stencil operator
 (``operators.StencilNormalOperator``: array shifts, no assembly; optionally pyamg smoothed-aggregation AMG on
 the assembled matrix; with ``cg_device`` the same Jacobi-PCG runs in torch, on a GPU when asked), warm-started
-from the upsampled coarser solution. s is updated in closed form between solves (block coordinate descent), its
-gauge fixed by mean(s) = 0; metric teachers keep s = 0. Systems are assembled and checked in float64: the
-Jacobi-PCG's stencil products run in float32 (``cg_precision='mixed'``: half the memory traffic) with the
-residual recomputed in float64 and refined until it meets ``tol`` there; the output is float32.
-Affine-invariant views (unknown scale and shift) are first aligned to each other (``affine.py``). l_i is the
-view's log distance warped onto the level's ERP grid (``warp.py``; ``FusionConfig.sampling``).
+from each pixel's data-weighted mean of its observations at the current per-view scales (the level's own fine
+detail), the upsampled coarser solution where no view sees the pixel (``warm_start='coarse'``: that solution
+everywhere, which leaves the CG to rebuild the detail the coarser grid could not hold: 5-7x the iterations).
+s is updated in closed form between solves (block coordinate descent), its gauge fixed by mean(s) = 0; metric
+teachers keep s = 0. Systems are assembled and checked in float64: the Jacobi-PCG's stencil products run in
+float32 (``cg_precision='mixed'``: half the memory traffic) with the residual recomputed in float64 and
+refined until it meets ``tol`` there; the output is float32. Affine-invariant views (unknown scale and shift) are
+first aligned to each other (``affine.py``). l_i is the view's log distance warped onto the level's ERP grid
+(``warp.py``; ``FusionConfig.sampling``).
 """
 
 from __future__ import annotations
@@ -77,9 +80,8 @@ class FusionConfig:
     border_smooth: float = 0.1  # membrane weight (gradient = 0) where a border pixel is filled, relative to w_grad
     border_laplacian: float = 1.0  # Laplacian = 0 weight where a border pixel is filled, relative to w_lap
     cg_device: str | None = None  # None: SciPy's CG; "cpu" / "cuda": the same Jacobi-PCG in torch float64 there
-    cg_precision: str = (
-        "mixed"  # SciPy Jacobi-PCG: "mixed" (float32 products, float64 check and refinement) or "double"
-    )
+    cg_precision: str = "mixed"  # SciPy Jacobi-PCG: "mixed" (float32 products, float64 refinement) or "double"
+    warm_start: str = "data"  # CG start: "data" (observations' mean; the coarser solution where none) or "coarse"
     sampling: str = "linear"  # warp: "linear" (edge-aware bilinear, footprint-averaged) or "nearest" (warp.py)
     supersample: int | None = None  # sub-rays per ERP pixel side, finest level, "linear"; None: from the footprint
     edge_log: float = 0.1  # "linear" leaves out taps further than this (log distance) from the nearest one
@@ -104,6 +106,8 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.edge_log={self.edge_log!r}: expected > 0 (log distance)")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
+        if self.warm_start not in ("data", "coarse"):
+            raise ValueError(f"FusionConfig.warm_start={self.warm_start!r}: expected 'data' or 'coarse'")
         if self.cg_precision not in ("mixed", "double"):
             raise ValueError(f"FusionConfig.cg_precision={self.cg_precision!r}: expected 'mixed' or 'double'")
         if self.cg_device is not None and self.preconditioner != "jacobi":
@@ -310,6 +314,13 @@ def _data_rhs(level: _Level, data_w, s: np.ndarray) -> np.ndarray:
     return b
 
 
+def _data_mean(level: _Level, data_w, s: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """[H*W] the data-weighted mean of each pixel's observations l_i + s_i (the level's own detail, at the current
+    per-view log-scales), ``fallback`` where no view observes the pixel: the CG's warm start."""
+    wsum = sum(np.bincount(o.index, w, minlength=len(fallback)) for o, w in zip(level.obs, data_w))
+    return np.where(wsum > 0, _data_rhs(level, data_w, s) / np.maximum(wsum, 1e-300), fallback)
+
+
 def _update_scales(level: _Level, data_w, x: np.ndarray, metric: bool) -> np.ndarray:
     """Closed-form s_i = weighted mean of (x - l_i) over view i's pixels; gauge mean(s) = 0."""
     V = len(level.obs)
@@ -483,11 +494,8 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         A, b0, data_w = _assemble(level, cfg, sparse=direct or cfg.preconditioner == "amg")
         if s is None:
             s = _initial_scales(level, metric)
-        if x is None:
-            wsum = sum(np.bincount(o.index, w, minlength=h * 2 * h) for o, w in zip(level.obs, data_w))
-            x = np.where(wsum > 0, _data_rhs(level, data_w, s) / np.maximum(wsum, 1e-300), 0.0)
-        else:
-            x = _upsample(x, prev_seen, prev_h, h)
+        coarse = np.zeros(h * 2 * h) if x is None else _upsample(x, prev_seen, prev_h, h)
+        x = coarse if x is not None and cfg.warm_start == "coarse" else _data_mean(level, data_w, s, coarse)
         its_total, resid = 0, float("nan")
         torch_cg = cfg.cg_device is not None and not direct
         mixed = not (direct or torch_cg) and cfg.preconditioner == "jacobi" and cfg.cg_precision == "mixed"
