@@ -9,7 +9,7 @@ methods: ``exact`` (as split), ``scale`` (times a random per-view scale in [0.7,
 views, ``default_view_size``) split the same way, under ``scale+noise``.
 
     python -m panorecon.evaluation.bench_fusion_moge [--widths 1024 2048] [--variants nearest linear-1 linear-2]
-        [--out result.json]
+        [--repeats N] [--out result.json]
 
 Needs the ``moge`` extra (``dlr-moge`` and ``dlr-utils3d``; see scripts/setup.sh). Every run is a fresh
 process: ``peak_mb`` is that run's peak resident memory (VmHWM: imports, truth and views included,
@@ -169,10 +169,11 @@ VARIANTS = {
 }
 
 
-def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr) -> list[dict]:
+def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr, repeats: int = 1) -> list[dict]:
     """All rows: per width, condition and method (equal inputs), plus fibonacci-own per width, plus
     ``fuse_views[variant]`` (``VARIANTS``: one FusionConfig change each) on the equal inputs under
-    scale+noise."""
+    scale+noise. Each row runs ``repeats`` times, each in a fresh process: ``seconds`` and ``cpu_seconds`` are
+    the medians (every run's in ``*_runs``), ``peak_mb`` the largest."""
     from ..scenes import load_scene
 
     require_moge()
@@ -185,8 +186,16 @@ def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr) 
             jobs += [("fuse_views", "fibonacci", "scale+noise", None)]
             jobs += [("fuse_views", "moge", "scale+noise", v) for v in variants]
             for method, layout, condition, variant in jobs:
-                r = in_fresh_process(one_run, method, path, layout, condition, seed, VARIANTS.get(variant))
+                runs = [
+                    in_fresh_process(one_run, method, path, layout, condition, seed, VARIANTS.get(variant))
+                    for _ in range(repeats)
+                ]
+                r = dict(runs[0])  # abs_rel, pixels and iterations are the same in every run (deterministic)
                 r.pop("peak_rss_mb", None)  # getrusage's peak counts the parent's RSS at fork: peak_mb is the run's own
+                for key in ("seconds", "cpu_seconds"):
+                    r[key] = float(np.median([x[key] for x in runs]))
+                    r[key + "_runs"] = [x[key] for x in runs]
+                r["peak_mb"] = max(x["peak_mb"] for x in runs)
                 name = "fibonacci-own" if layout == "fibonacci" else f"{method}[{variant}]" if variant else method
                 row = {
                     "erp": f"{width}x{width // 2}",
@@ -228,11 +237,14 @@ def main(argv=None) -> dict:
         choices=sorted(VARIANTS),
         help="also fuse_views with one setting changed (scale+noise): the levers measured alone",
     )
+    ap.add_argument("--repeats", type=int, default=1, help="fresh-process runs per row (seconds: their median)")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
+    if args.repeats < 1:
+        ap.error(f"--repeats {args.repeats}: expected >= 1")
     with open("/proc/loadavg") as f:
         load_before = f.read().split()[:3]
-    rows = run(args.scene, args.widths, args.conditions, args.seed, args.variants)
+    rows = run(args.scene, args.widths, args.conditions, args.seed, args.variants, repeats=args.repeats)
     from importlib.metadata import version
 
     env = environment()
@@ -248,6 +260,7 @@ def main(argv=None) -> dict:
             "view_size": VIEW_SIZE,
             "noise": NOISE,
             "seed": args.seed,
+            "repeats": args.repeats,
             "loadavg_before": load_before,
             "loadavg_after": load,
             "thread_env": threads,

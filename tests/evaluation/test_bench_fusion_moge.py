@@ -45,3 +45,23 @@ def test_rows_carry_both_methods_and_the_ratios(tmp_path, monkeypatch):
         assert np.isfinite(r["abs_rel"]) and r["abs_rel"] < 0.05 and r["pixels"] == 64 * 128 and r["peak_mb"] > 0
     assert by["fuse_views"]["speedup_vs_moge"] == by["moge"]["seconds"] / by["fuse_views"]["seconds"]
     json.dumps(rows)
+
+
+def test_repeats_give_the_median_of_fresh_runs(monkeypatch):
+    truth = box_distance(erp_directions(32, 64)).astype(np.float32)
+
+    class Scene:
+        distance = truth
+
+    monkeypatch.setattr("panorecon.scenes.load_scene", lambda name, width: Scene)
+    calls = iter(range(100))
+
+    def fake_run(fn, *a):
+        r = fn(*a)
+        return {**r, "seconds": float(next(calls)), "cpu_seconds": 1.0}
+
+    monkeypatch.setattr(bm, "in_fresh_process", fake_run)
+    monkeypatch.setattr(bm, "VIEW_SIZE", 32)
+    rows = bm.run("box", [64], ["exact"], 0, repeats=3)
+    assert [r["seconds_runs"] for r in rows] == [[0.0, 1.0, 2.0], [3.0, 4.0, 5.0], [6.0, 7.0, 8.0]]
+    assert [r["seconds"] for r in rows] == [1.0, 4.0, 7.0] and rows[1]["speedup_vs_moge"] == 1.0 / 4.0
