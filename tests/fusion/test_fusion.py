@@ -357,20 +357,6 @@ def test_data_warm_start_solves_the_same_system_in_fewer_iterations(fib20, box_t
         FusionConfig(warm_start="zero").check()
 
 
-def test_float32_operator_equals_the_float64_one():
-    from panorecon.fusion.operators import StencilNormalOperator
-
-    rng = np.random.default_rng(4)
-    H, W = 9, 14
-    op = StencilNormalOperator(
-        H, W, rng.random(H * W), rng.random((H - 1) * W), rng.random((H - 2) * W), rng.random(H * W)
-    )
-    x = rng.standard_normal(H * W)
-    y32 = op.astype(np.float32) @ x.astype(np.float32)
-    assert y32.dtype == np.float32
-    np.testing.assert_allclose(y32, op @ x, rtol=1e-5, atol=1e-5)
-
-
 def test_torch_cg_refuses_amg():
     with pytest.raises(ValueError, match="Jacobi"):
         FusionConfig(cg_device="cpu", preconditioner="amg").check()

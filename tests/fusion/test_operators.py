@@ -66,3 +66,15 @@ def test_torch_operator_equals_the_numpy_one(H, W, seed, spread):
     x = rng.normal(size=H * W)
     got = (TorchStencilOperator(op, "cpu") @ torch.from_numpy(x)).numpy()
     np.testing.assert_allclose(got, op @ x, rtol=1e-12, atol=1e-12 * np.abs(op @ x).max())
+
+
+def test_float32_operator_equals_the_float64_one():
+    rng = np.random.default_rng(4)
+    H, W = 9, 14
+    op = StencilNormalOperator(
+        H, W, rng.random(H * W), rng.random((H - 1) * W), rng.random((H - 2) * W), rng.random(H * W)
+    )
+    x = rng.standard_normal(H * W)
+    y32 = op.astype(np.float32) @ x.astype(np.float32)
+    assert y32.dtype == np.float32
+    np.testing.assert_allclose(y32, op @ x, rtol=1e-5, atol=1e-5)
