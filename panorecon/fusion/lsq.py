@@ -393,7 +393,8 @@ def _solve_mixed(A: StencilNormalOperator, b, x0, tol: float, maxiter: int):
     float64 solve: ||A x - b|| <= tol ||b|| in float64. -> (x float64, iterations, relative residual)."""
     bn = np.linalg.norm(b) or 1.0
     A32 = A.astype(np.float32)
-    M32 = sp.diags((1.0 / A.diagonal()).astype(np.float32))
+    inv_diag = 1.0 / A.diagonal()  # the Jacobi preconditioner of both precisions
+    M32 = sp.diags(inv_diag.astype(np.float32))
     x = np.asarray(x0, np.float64).copy()
     r = b - A @ x
     its = 0
@@ -409,7 +410,7 @@ def _solve_mixed(A: StencilNormalOperator, b, x0, tol: float, maxiter: int):
         r = b - A @ x
         its += k
     if np.linalg.norm(r) > tol * bn and its < maxiter:
-        x, k, _ = _solve(A, b, x, tol, maxiter - its, sp.diags(1.0 / A.diagonal()))
+        x, k, _ = _solve(A, b, x, tol, maxiter - its, sp.diags(inv_diag))
         its += k
     return x, its, float(np.linalg.norm(A @ x - b) / bn)
 
