@@ -30,6 +30,7 @@ def main(argv=None) -> dict:
     ap.add_argument("out")
     ap.add_argument("overrides", nargs="*", help="TrainConfig field=value")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--teacher", default="sim:relative", help="depth teacher of the cloud and the depth term")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -41,13 +42,13 @@ def main(argv=None) -> dict:
             ap.error(f"{item!r}: {key!r} is not a TrainConfig field ({', '.join(types)})")
         setattr(cfg, key, types[key](value))
     scene = load_scene("bedroom", 512)
-    pc, report = run_source(scene, "fibonacci", "sim:relative", None, fusion_config_for(torch.device("cpu")))
+    pc, report = run_source(scene, "fibonacci", args.teacher, None, fusion_config_for(torch.device("cpu")))
     m = train(
         scene,
         pc,
         cfg,
         args.out,
-        teacher_depth_fn(scene, "sim:relative"),
+        teacher_depth_fn(scene, args.teacher),
         progress=False,
         device="cpu",
         heldout_scale=cloud_scale(report),
@@ -55,6 +56,7 @@ def main(argv=None) -> dict:
     row = {
         "out": args.out,
         "overrides": args.overrides,
+        "teacher": args.teacher,
         "heldout_psnr": m["held-out"]["psnr"],
         "train_s": m["seconds"]["train"],
         "gaussians": m["gaussians"],

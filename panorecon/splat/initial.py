@@ -1,5 +1,14 @@
-"""What the trainer starts from, whatever the point source: the cloud thinned to the training resolution, and
-the panorama's sky as a fixed environment at infinity behind the Gaussians.
+"""What the trainer starts from, whatever the point source: the cloud thinned to the training resolution, points
+behind its depth edges for the views that look behind them, and the panorama's sky as a fixed environment at
+infinity behind the Gaussians.
+
+Disocclusions. Every pseudo-label is seen from the panorama centre, so the surface behind a depth edge (the
+floor behind a bed's edge) has points only up to where the foreground hides it; a view from elsewhere looks past
+the edge into a hole. ``disocclusion_fill`` extends the background behind the foreground, as layered-depth
+methods do (Shade et al. 1998; Shih et al., 3D Photo Inpainting, 2020): each foreground pixel within
+``fill_deg`` of an edge gets a second point on its ray at the background's distance, coloured like the
+background. From the centre these points lie behind opaque foreground, so the pseudo-labels neither see nor
+remove them; from elsewhere they fill the hole with the background's continuation instead of nothing.
 
 Sky. Sources drop sky pixels (no finite distance), so without help the trainer covers the sky with Gaussians
 at arbitrary depths that look wrong from anywhere but the centre. A sky is infinitely far: its colour depends
@@ -17,6 +26,7 @@ import math
 import numpy as np
 
 from ..geometry import PointCloud, erp_to_perspective
+from ..geometry.sphere import direction_to_erp_pixel, erp_directions
 
 
 def sky_environment(scene) -> np.ndarray | None:
@@ -63,3 +73,86 @@ def thin_cloud(pc: PointCloud, n_points: int, seed: int = 0) -> PointCloud:
     keys = np.log(np.maximum(u, 1e-300)) / w  # log of u^(1/w): same order, no underflow
     keep = np.sort(np.argpartition(-keys, n_points - 1)[:n_points])
     return pc.subset(keep)
+
+
+def _erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The cloud seen from the origin: per ERP pixel the nearest point's distance [H, W] float64 (inf where no
+    point) and colour [H, W, 3] float32."""
+    r = np.linalg.norm(pc.xyz.astype(np.float64), axis=1)
+    ok = r > 0
+    rows, cols = direction_to_erp_pixel(pc.xyz[ok].astype(np.float64), height, width)
+    ri = np.clip(np.rint(rows).astype(np.int64), 0, height - 1)
+    ci = np.rint(cols).astype(np.int64) % width
+    far_first = np.argsort(-r[ok], kind="stable")  # the nearest point of a pixel is written last
+    dist = np.full((height, width), np.inf)
+    rgb = np.zeros((height, width, 3), np.float32)
+    dist[ri[far_first], ci[far_first]] = r[ok][far_first]
+    rgb[ri[far_first], ci[far_first]] = pc.rgb[ok][far_first]
+    return dist, rgb
+
+
+def _neighbours(a: np.ndarray, fill) -> list[np.ndarray]:
+    """The 4-neighbour values of every pixel of an ERP array [H, W, ...]: columns wrap, rows beyond the poles
+    read ``fill``."""
+    up = np.concatenate([np.full_like(a[:1], fill), a[:-1]], 0)
+    down = np.concatenate([a[1:], np.full_like(a[:1], fill)], 0)
+    return [up, down, np.roll(a, 1, 1), np.roll(a, -1, 1)]
+
+
+def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float = 10.0, jump: float = 0.1) -> PointCloud:
+    """Points behind the depth edges of ``pc`` as seen from the origin (the panorama centre), on an ERP grid of
+    ``height`` x ``width``. A pixel is behind an edge when a 4-neighbour's distance exceeds its own by more
+    than ``jump`` (relative); it gets a point at that neighbour's distance (the nearest such, when several) and
+    colour. The background layer then grows into the foreground one pixel per step, for ``fill_deg`` degrees of
+    longitude, each pixel taking the layer of a neighbour that is still ``jump`` beyond its own distance; a
+    pixel gets at most one layer point. Pixels without a point (sky, thinned) neither receive nor give a layer.
+    Returns the new points only (possibly none)."""
+    if not (fill_deg >= 0 and jump > 0):
+        raise ValueError(f"disocclusion_fill: fill_deg={fill_deg}, jump={jump}: expected fill_deg >= 0, jump > 0")
+    dist, rgb = _erp_zbuffer(pc, height, width)
+    layer_d = np.full((height, width), np.inf)
+    layer_rgb = np.zeros((height, width, 3), np.float32)
+    steps = int(math.ceil(fill_deg / (360.0 / width)))
+    for _ in range(steps):
+        source_d = np.where(np.isfinite(layer_d), layer_d, dist)  # a neighbour's layer, else its own surface
+        source_rgb = np.where(np.isfinite(layer_d)[..., None], layer_rgb, rgb)
+        best_d = np.full((height, width), np.inf)
+        best_rgb = np.zeros_like(rgb)
+        for nd, nc in zip(_neighbours(source_d, np.inf), _neighbours(source_rgb, 0.0)):
+            take = np.isfinite(nd) & (nd > dist * (1 + jump)) & (nd < best_d)
+            best_d = np.where(take, nd, best_d)
+            best_rgb = np.where(take[..., None], nc, best_rgb)
+        new = np.isfinite(best_d) & np.isfinite(dist) & ~np.isfinite(layer_d)
+        if not new.any():
+            break
+        layer_d[new], layer_rgb[new] = best_d[new], best_rgb[new]
+    at = np.isfinite(layer_d)
+    xyz = erp_directions(height, width)[at] * layer_d[at][:, None]
+    return PointCloud(xyz.astype(np.float32), layer_rgb[at])
+
+
+def disocclusion_fill_reference(
+    pc: PointCloud, height: int, width: int, fill_deg: float = 10.0, jump: float = 0.1
+) -> dict[tuple[int, int], tuple[float, tuple]]:
+    """``disocclusion_fill`` pixel by pixel, with plain loops: {(row, col): (distance, rgb)} of the layer."""
+    dist, rgb = _erp_zbuffer(pc, height, width)
+    layer: dict[tuple[int, int], tuple[float, tuple]] = {}
+    for _ in range(int(math.ceil(fill_deg / (360.0 / width)))):
+        added = {}
+        for r in range(height):
+            for c in range(width):
+                if (r, c) in layer or not np.isfinite(dist[r, c]):
+                    continue
+                best = None
+                for rr, cc in ((r - 1, c), (r + 1, c), (r, (c - 1) % width), (r, (c + 1) % width)):
+                    if not 0 <= rr < height:
+                        continue
+                    d, col = layer.get((rr, cc), (dist[rr, cc], tuple(rgb[rr, cc])))
+                    if np.isfinite(d) and d > dist[r, c] * (1 + jump) and (best is None or d < best[0]):
+                        best = (d, col)
+                if best is not None:
+                    added[(r, c)] = best
+        if not added:
+            break
+        layer.update(added)
+    return layer

@@ -15,10 +15,11 @@ import numpy as np
 import torch
 
 from ..device import device_record, reset_peak_memory, resolve_device, synchronize
+from ..geometry import PointCloud
 from ..io import peak_rss_mb, write_image, write_json
 from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import MODEL_KEYS, checkpoint_inputs, load_checkpoint, save_checkpoint
-from .initial import points_for_resolution, sky_environment, thin_cloud, view_background
+from .initial import disocclusion_fill, points_for_resolution, sky_environment, thin_cloud, view_background
 from .labels import LabelView, in_cloud_frame, make_heldout_views, make_panorama_heldout_views, make_pseudo_labels
 from .losses import ssim, total_loss
 from .model import GaussianModel
@@ -44,6 +45,8 @@ class TrainConfig:
     sh_degree: int = _f(3, "largest SH degree; the active degree grows every sh_increase_every steps")
     sh_increase_every: int = _f(1000, "steps between SH degree increases")
     strategy: str = _f("default", "densify/prune strategy: default (3DGS) or adaptive (§2.5 contribution pruning)")
+    densify_until: float = _f(0.5, "fraction of iters after which no Gaussian is cloned or split (0: never densify)")
+    grad_threshold: float = _f(2e-4, "mean NDC 2D-mean gradient above which a Gaussian is cloned or split")
     w_l1: float = _f(0.8, "weight of L1 (eq. 9)")
     w_ssim: float = _f(0.2, "weight of 1 - SSIM (eq. 12)")
     w_depth: float = _f(0.05, "weight of the Pearson depth term (eq. 10-11)")
@@ -59,6 +62,11 @@ class TrainConfig:
     history_every: int = _f(100, "steps between history samples (training-view and held-out PSNR)")
     sky: str = _f(
         "panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none"
+    )
+    disocclusion_fill_deg: float = _f(
+        10.0,
+        "degrees of background added behind each depth edge of the cloud, as seen from the centre, for views "
+        "that look behind it (0: none; splat/initial.py)",
     )
     init_pixels_per_point: float = _f(
         1.0,
@@ -254,6 +262,14 @@ def train(
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
+    fill_points = 0
+    if cfg.disocclusion_fill_deg:
+        fill = disocclusion_fill(point_cloud, *scene.rgb.shape[:2], cfg.disocclusion_fill_deg)
+        fill_points = len(fill)
+        log.info("disocclusion fill: %d points behind depth edges", fill_points)
+        point_cloud = PointCloud(
+            np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])
+        )
     if cfg.init_pixels_per_point:
         point_cloud = thin_cloud(
             point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point), cfg.seed
@@ -269,7 +285,9 @@ def train(
         ("shN", cfg.lr_shN),
     ]
     opt = _adam(model, groups)
-    strategy = STRATEGIES[cfg.strategy](refine_stop=cfg.iters // 2)
+    strategy = STRATEGIES[cfg.strategy](
+        refine_stop=int(cfg.densify_until * cfg.iters), grad_threshold=cfg.grad_threshold
+    )
     start, history = 0, []
     ckpt = out / "ckpt.pt"
     keys = checkpoint_inputs(scene, point_cloud, cfg.digest(), {**(inputs or {}), "heldout_scale": heldout_scale})
@@ -416,6 +434,7 @@ def train(
         iterations=cfg.iters,
         gaussians=len(model),
         initial_gaussians=len(point_cloud),
+        disocclusion_points=fill_points,
         backend=backend,
         strategy=cfg.strategy,
         peak_rss_mb=peak_rss_mb(),

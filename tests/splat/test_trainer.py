@@ -96,7 +96,11 @@ def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     assert n < len(pc)
     assert train(scene, pc, TrainConfig(**c), tmp_path / "a", progress=False)["initial_gaussians"] == n
     kept = train(scene, pc, TrainConfig(**{**c, "init_pixels_per_point": 0}), tmp_path / "b", progress=False)
-    assert kept["initial_gaussians"] == len(pc)
+    assert kept["disocclusion_points"] > 0  # the bedroom's furniture has depth edges
+    assert kept["initial_gaussians"] == len(pc) + kept["disocclusion_points"]
+    bare = TrainConfig(**{**c, "init_pixels_per_point": 0, "disocclusion_fill_deg": 0})
+    m = train(scene, pc, bare, tmp_path / "c", progress=False)
+    assert m["initial_gaussians"] == len(pc) and m["disocclusion_points"] == 0
 
 
 def interrupt_training(monkeypatch, run, at_step: int = 45) -> None:

@@ -122,9 +122,12 @@ def rasterize(
         cols = colors if per_camera else colors[None].expand(len(viewmats), -1, -1)
     else:
         campos = -torch.einsum("cji,cj->ci", viewmats[:, :3, :3], viewmats[:, :3, 3])
-        dirs = means[None] - campos[:, None]
-        dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        cols = sh_to_rgb(sh_degree, colors, dirs)
+        if backend == "cpu":  # only the pairs the compositor reads (radius > 0)
+            cols = cpu_backend.sh_colors(sh_degree, colors, means, campos, radii)
+        else:
+            dirs = means[None] - campos[:, None]
+            dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+            cols = sh_to_rgb(sh_degree, colors, dirs)
     if backend == "cpu":
         image, alpha, depth, contrib = cpu_backend.composite(
             means2d, conics, cols, opacities, depths, radii, width, height, tile_size, return_contrib

@@ -1,4 +1,5 @@
-"""The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians) and tiled compositing
+"""The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians), SH colours of the visible
+Gaussians (csrc/sh_cpu.cpp, parallel over Gaussians) and tiled compositing
 (csrc/rasterize_cpu.cpp, parallel over tiles) in C++ with hand-written backwards, through ATen's thread pool
 (OpenMP). Built with torch.utils.cpp_extension on first use
 (or ahead of time by ``python -m panorecon.splat.rasterize.build``) into
@@ -20,7 +21,9 @@ from pathlib import Path
 import torch
 
 log = logging.getLogger("panorecon.splat")
-_SOURCES = [Path(__file__).parent / "csrc" / f for f in ("module.cpp", "project_cpu.cpp", "rasterize_cpu.cpp")]
+_SOURCES = [
+    Path(__file__).parent / "csrc" / f for f in ("module.cpp", "project_cpu.cpp", "sh_cpu.cpp", "rasterize_cpu.cpp")
+]
 _module = None
 _error: str | None = None
 
@@ -130,6 +133,34 @@ def project(
         float(eps2d),
     )
     return means2d, conics, depths, radii
+
+
+class _ShColors(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, coeffs, means, campos, radii, degree):
+        ctx.save_for_backward(coeffs, means, campos, radii)
+        ctx.degree = degree
+        return load().sh_forward(coeffs, means, campos, radii, degree)
+
+    @staticmethod
+    def backward(ctx, g_colors):
+        coeffs, means, campos, radii = ctx.saved_tensors
+        g_coeffs, g_means = load().sh_backward(coeffs, means, campos, radii, g_colors.contiguous(), ctx.degree)
+        return g_coeffs, g_means, None, None, None
+
+
+def sh_colors(degree: int, coeffs, means, campos, radii):
+    """``sh.sh_to_rgb`` in C++ for the (camera, Gaussian) pairs with radius > 0, in the dtype of ``means``:
+    coeffs [N,K,3], means [N,3], campos [C,3] camera centres, radii [C,N] -> colours [C,N,3], 0 (and no gradient)
+    where culled. Differentiable w.r.t. coeffs and means (through the view direction)."""
+    if not 0 <= degree <= 3 or coeffs.shape[-2] < (degree + 1) ** 2:
+        raise ValueError(
+            f"sh_degree={degree} with {coeffs.shape[-2]} coefficients per channel: expected 0..3, "
+            "and (degree + 1)^2 coefficients or more"
+        )
+    dtype = means.dtype if means.dtype in (torch.float32, torch.float64) else torch.float32
+    f = lambda t: t.to(dtype).contiguous()  # noqa: E731
+    return _ShColors.apply(f(coeffs), f(means), f(campos), radii.to(torch.int32).contiguous(), int(degree))
 
 
 class _Composite(torch.autograd.Function):

@@ -1,4 +1,5 @@
-// The Python module of the cpu backend: projection (project_cpu.cpp) and compositing (rasterize_cpu.cpp).
+// The Python module of the cpu backend: projection (project_cpu.cpp), SH colours (sh_cpu.cpp) and compositing
+// (rasterize_cpu.cpp).
 #include <torch/extension.h>
 #include <vector>
 
@@ -16,10 +17,16 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
                                             torch::Tensor viewmats, torch::Tensor Ks, torch::Tensor radii,
                                             torch::Tensor g_m2d, torch::Tensor g_con, torch::Tensor g_dep, int64_t W,
                                             int64_t H, double near, double far, double eps2d);
+torch::Tensor sh_forward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos, torch::Tensor radii,
+                         int64_t degree);
+std::vector<torch::Tensor> sh_backward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos,
+                                       torch::Tensor radii, torch::Tensor g_colors, int64_t degree);
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &forward, "tiled Gaussian compositing, forward");
   m.def("backward", &backward, "tiled Gaussian compositing, backward");
   m.def("project_forward", &project_forward, "EWA projection, forward");
   m.def("project_backward", &project_backward, "EWA projection, backward");
+  m.def("sh_forward", &sh_forward, "SH colours of the visible Gaussians, forward");
+  m.def("sh_backward", &sh_backward, "SH colours of the visible Gaussians, backward");
 }

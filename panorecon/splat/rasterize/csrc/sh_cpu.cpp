@@ -1,0 +1,156 @@
+// Spherical-harmonic colours of the Gaussians a camera sees, on the CPU: forward and hand-written backward,
+// parallel over Gaussians. The same arithmetic as the PyTorch reference (sh.py: sh_to_rgb with directions
+// normalised as (mean - camera centre) / max(|mean - camera centre|, 1e-12)): colour = sum_k basis_k(dir)
+// coeff_k + 0.5, clamped at 0. Only pairs with radius > 0 are evaluated (the compositor reads no other); a culled
+// pair's colour is 0 and passes no gradient. Templated on the scalar type (float for training, double for tests).
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+#include <cmath>
+#include <vector>
+
+namespace {
+
+constexpr double C0 = 0.28209479177387814, C1 = 0.4886025119029199;
+constexpr double C2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
+                          0.5462742152960396};
+constexpr double C3[7] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+                          -0.4570457994644658, 1.445305721320277, -0.5900435899266435};
+
+// basis [K] at the unit direction (x, y, z); with ``grad`` also d basis_k / d(x, y, z) [K][3].
+template <typename T>
+inline void sh_basis(int degree, T x, T y, T z, T* b, T (*d)[3]) {
+  b[0] = T(C0);
+  if (d) d[0][0] = d[0][1] = d[0][2] = 0;
+  if (degree < 1) return;
+  b[1] = -T(C1) * y; b[2] = T(C1) * z; b[3] = -T(C1) * x;
+  if (d) {
+    for (int k = 1; k < 4; ++k) d[k][0] = d[k][1] = d[k][2] = 0;
+    d[1][1] = -T(C1); d[2][2] = T(C1); d[3][0] = -T(C1);
+  }
+  if (degree < 2) return;
+  const T xx = x * x, yy = y * y, zz = z * z;
+  b[4] = T(C2[0]) * x * y; b[5] = T(C2[1]) * y * z; b[6] = T(C2[2]) * (2 * zz - xx - yy);
+  b[7] = T(C2[3]) * x * z; b[8] = T(C2[4]) * (xx - yy);
+  if (d) {
+    const T g[5][3] = {{y, x, 0}, {0, z, y}, {-2 * x, -2 * y, 4 * z}, {z, 0, x}, {2 * x, -2 * y, 0}};
+    for (int k = 0; k < 5; ++k)
+      for (int j = 0; j < 3; ++j) d[4 + k][j] = T(C2[k]) * g[k][j];
+  }
+  if (degree < 3) return;
+  b[9] = T(C3[0]) * y * (3 * xx - yy);
+  b[10] = T(C3[1]) * x * y * z;
+  b[11] = T(C3[2]) * y * (4 * zz - xx - yy);
+  b[12] = T(C3[3]) * z * (2 * zz - 3 * xx - 3 * yy);
+  b[13] = T(C3[4]) * x * (4 * zz - xx - yy);
+  b[14] = T(C3[5]) * z * (xx - yy);
+  b[15] = T(C3[6]) * x * (xx - 3 * yy);
+  if (d) {
+    const T g[7][3] = {{6 * x * y, 3 * xx - 3 * yy, 0},
+                       {y * z, x * z, x * y},
+                       {-2 * x * y, 4 * zz - xx - 3 * yy, 8 * y * z},
+                       {-6 * x * z, -6 * y * z, 6 * zz - 3 * xx - 3 * yy},
+                       {4 * zz - 3 * xx - yy, -2 * x * y, 8 * x * z},
+                       {2 * x * z, -2 * y * z, xx - yy},
+                       {3 * xx - 3 * yy, -6 * x * y, 0}};
+    for (int k = 0; k < 7; ++k)
+      for (int j = 0; j < 3; ++j) d[9 + k][j] = T(C3[k]) * g[k][j];
+  }
+}
+
+// Unnormalised direction v = mean - camera centre, its clamped norm, and the unit direction.
+template <typename T>
+inline T direction(const T* mean, const T* campos, T* v, T* u) {
+  for (int j = 0; j < 3; ++j) v[j] = mean[j] - campos[j];
+  const T norm = std::max(std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]), T(1e-12));
+  for (int j = 0; j < 3; ++j) u[j] = v[j] / norm;
+  return norm;
+}
+
+template <typename T>
+void forward_impl(const T* coeffs, const T* means, const T* campos, const int32_t* rad, int64_t C, int64_t N,
+                  int64_t K, int degree, T* colors) {
+  const int k_used = (degree + 1) * (degree + 1);
+  at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
+    T b[16], v[3], u[3];
+    for (int64_t n = b0; n < e0; ++n) {
+      const T* co = coeffs + n * K * 3;
+      for (int64_t c = 0; c < C; ++c) {
+        T* out = colors + (c * N + n) * 3;
+        if (rad[c * N + n] <= 0) { out[0] = out[1] = out[2] = 0; continue; }
+        direction(means + n * 3, campos + c * 3, v, u);
+        sh_basis<T>(degree, u[0], u[1], u[2], b, nullptr);
+        for (int ch = 0; ch < 3; ++ch) {
+          T s = T(0.5);
+          for (int k = 0; k < k_used; ++k) s += b[k] * co[k * 3 + ch];
+          out[ch] = s > 0 ? s : T(0);
+        }
+      }
+    }
+  });
+}
+
+template <typename T>
+void backward_impl(const T* coeffs, const T* means, const T* campos, const int32_t* rad, const T* g_colors,
+                   int64_t C, int64_t N, int64_t K, int degree, T* g_coeffs, T* g_means) {
+  const int k_used = (degree + 1) * (degree + 1);
+  at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
+    T b[16], d[16][3], v[3], u[3];
+    for (int64_t n = b0; n < e0; ++n) {
+      const T* co = coeffs + n * K * 3;
+      T* gco = g_coeffs + n * K * 3;
+      for (int64_t c = 0; c < C; ++c) {
+        if (rad[c * N + n] <= 0) continue;
+        const T norm = direction(means + n * 3, campos + c * 3, v, u);
+        sh_basis<T>(degree, u[0], u[1], u[2], b, degree > 0 ? d : nullptr);
+        T graw[3];
+        for (int ch = 0; ch < 3; ++ch) {  // clamp at 0 passes the gradient where the sum is >= 0
+          T s = T(0.5);
+          for (int k = 0; k < k_used; ++k) s += b[k] * co[k * 3 + ch];
+          graw[ch] = s >= 0 ? g_colors[(c * N + n) * 3 + ch] : T(0);
+        }
+        T gu[3] = {0, 0, 0};
+        for (int k = 0; k < k_used; ++k) {
+          T gb = 0;
+          for (int ch = 0; ch < 3; ++ch) {
+            gco[k * 3 + ch] += b[k] * graw[ch];
+            gb += co[k * 3 + ch] * graw[ch];
+          }
+          if (degree > 0)
+            for (int j = 0; j < 3; ++j) gu[j] += gb * d[k][j];
+        }
+        if (degree == 0) continue;
+        // u = v / max(|v|, 1e-12): the projection (I - u u^T) / |v| above the clamp, 1 / 1e-12 below it
+        const bool clamped = !(norm > T(1e-12));
+        const T dot = clamped ? T(0) : u[0] * gu[0] + u[1] * gu[1] + u[2] * gu[2];
+        for (int j = 0; j < 3; ++j) g_means[n * 3 + j] += (gu[j] - u[j] * dot) / norm;
+      }
+    }
+  });
+}
+
+}  // namespace
+
+// -> colours [C,N,3] of coefficients [N,K,3] (K >= (degree + 1)^2) seen from camera centres [C,3].
+torch::Tensor sh_forward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos, torch::Tensor radii,
+                         int64_t degree) {
+  const int64_t C = campos.size(0), N = means.size(0), K = coeffs.size(1);
+  auto colors = torch::empty({C, N, 3}, means.options());
+  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "sh_forward", [&] {
+    forward_impl<scalar_t>(coeffs.data_ptr<scalar_t>(), means.data_ptr<scalar_t>(), campos.data_ptr<scalar_t>(),
+                           radii.data_ptr<int32_t>(), C, N, K, (int)degree, colors.data_ptr<scalar_t>());
+  });
+  return colors;
+}
+
+// Gradients w.r.t. coefficients [N,K,3] and means [N,3] from those of the colours [C,N,3].
+std::vector<torch::Tensor> sh_backward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos,
+                                       torch::Tensor radii, torch::Tensor g_colors, int64_t degree) {
+  const int64_t C = campos.size(0), N = means.size(0), K = coeffs.size(1);
+  auto g_coeffs = torch::zeros_like(coeffs), g_means = torch::zeros_like(means);
+  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "sh_backward", [&] {
+    backward_impl<scalar_t>(coeffs.data_ptr<scalar_t>(), means.data_ptr<scalar_t>(), campos.data_ptr<scalar_t>(),
+                            radii.data_ptr<int32_t>(), g_colors.data_ptr<scalar_t>(), C, N, K, (int)degree,
+                            g_coeffs.data_ptr<scalar_t>(), g_means.data_ptr<scalar_t>());
+  });
+  return {g_coeffs, g_means};
+}
