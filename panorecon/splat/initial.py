@@ -91,44 +91,57 @@ def _erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, n
     return dist, rgb
 
 
-def _neighbours(a: np.ndarray, fill) -> list[np.ndarray]:
-    """The 4-neighbour values of every pixel of an ERP array [H, W, ...]: columns wrap, rows beyond the poles
-    read ``fill``."""
-    up = np.concatenate([np.full_like(a[:1], fill), a[:-1]], 0)
-    down = np.concatenate([a[1:], np.full_like(a[:1], fill)], 0)
-    return [up, down, np.roll(a, 1, 1), np.roll(a, -1, 1)]
-
-
 def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float = 10.0, jump: float = 0.1) -> PointCloud:
     """Points behind the depth edges of ``pc`` as seen from the origin (the panorama centre), on an ERP grid of
     ``height`` x ``width``. A pixel is behind an edge when a 4-neighbour's distance exceeds its own by more
-    than ``jump`` (relative); it gets a point at that neighbour's distance (the nearest such, when several) and
-    colour. The background layer then grows into the foreground one pixel per step, for ``fill_deg`` degrees of
-    longitude, each pixel taking the layer of a neighbour that is still ``jump`` beyond its own distance; a
-    pixel gets at most one layer point. Pixels without a point (sky, thinned) neither receive nor give a layer.
-    Returns the new points only (possibly none)."""
+    than ``jump`` (relative); it gets a point at that neighbour's distance (the nearest such, when several; on a
+    tie the first of up, down, left, right) and colour. The background layer then grows into the foreground one
+    pixel per step, for ``fill_deg`` degrees of longitude, each pixel taking the layer of a neighbour that is
+    still ``jump`` beyond its own distance; a pixel gets at most one layer point. Columns wrap; pixels without a
+    point (sky, thinned) neither receive nor give a layer. Returns the new points only (possibly none).
+
+    Each step looks only at the neighbours of the pixels the previous step assigned (a layer never changes once
+    set, so no other pixel can gain one): the work grows with the edges' length, not the image's size."""
     if not (fill_deg >= 0 and jump > 0):
         raise ValueError(f"disocclusion_fill: fill_deg={fill_deg}, jump={jump}: expected fill_deg >= 0, jump > 0")
     dist, rgb = _erp_zbuffer(pc, height, width)
-    layer_d = np.full((height, width), np.inf)
-    layer_rgb = np.zeros((height, width, 3), np.float32)
-    steps = int(math.ceil(fill_deg / (360.0 / width)))
-    for _ in range(steps):
-        source_d = np.where(np.isfinite(layer_d), layer_d, dist)  # a neighbour's layer, else its own surface
-        source_rgb = np.where(np.isfinite(layer_d)[..., None], layer_rgb, rgb)
-        best_d = np.full((height, width), np.inf)
-        best_rgb = np.zeros_like(rgb)
-        for nd, nc in zip(_neighbours(source_d, np.inf), _neighbours(source_rgb, 0.0)):
-            take = np.isfinite(nd) & (nd > dist * (1 + jump)) & (nd < best_d)
-            best_d = np.where(take, nd, best_d)
-            best_rgb = np.where(take[..., None], nc, best_rgb)
-        new = np.isfinite(best_d) & np.isfinite(dist) & ~np.isfinite(layer_d)
-        if not new.any():
+    flat = dist.ravel()
+    layer_d = np.full(height * width, np.inf)
+    origin = np.full(height * width, -1, np.int64)  # the background pixel whose distance and colour a layer has
+
+    def neighbour(i: np.ndarray, k: int) -> np.ndarray:
+        """Flat index of neighbour k (0 up, 1 down, 2 left, 3 right) of flat pixels ``i``; -1 beyond a pole."""
+        r, c = np.divmod(i, width)
+        r = r + (-1, 1, 0, 0)[k]
+        c = (c + (0, 0, -1, 1)[k]) % width
+        return np.where((r >= 0) & (r < height), r * width + c, -1)
+
+    # sources: every pixel with a finite surface (first step), then the pixels the last step gave a layer
+    sources = np.flatnonzero(np.isfinite(flat))
+    source_d, source_origin = flat[sources], sources
+    for _ in range(int(math.ceil(fill_deg / (360.0 / width)))):
+        targets, values, origins = [], [], []
+        for k in range(4):  # target t sees source s as its neighbour (1, 0, 3, 2)[k]: up first, as the rule reads
+            t = neighbour(sources, (1, 0, 3, 2)[k])
+            ok = t >= 0
+            t_ok = np.where(ok, t, 0)
+            ok &= np.isfinite(flat[t_ok]) & ~np.isfinite(layer_d[t_ok]) & (source_d > flat[t_ok] * (1 + jump))
+            targets.append(t[ok])
+            values.append(source_d[ok])
+            origins.append(source_origin[ok])
+        t, v, o = np.concatenate(targets), np.concatenate(values), np.concatenate(origins)
+        if not len(t):
             break
-        layer_d[new], layer_rgb[new] = best_d[new], best_rgb[new]
-    at = np.isfinite(layer_d)
-    xyz = erp_directions(height, width)[at] * layer_d[at][:, None]
-    return PointCloud(xyz.astype(np.float32), layer_rgb[at])
+        order = np.lexsort((np.arange(len(t)), v, t))  # by target, then nearest value, then neighbour order
+        t, v, o = t[order], v[order], o[order]
+        first = np.ones(len(t), bool)
+        first[1:] = t[1:] != t[:-1]
+        t, v, o = t[first], v[first], o[first]
+        layer_d[t], origin[t] = v, o
+        sources, source_d, source_origin = t, v, o
+    at = np.flatnonzero(np.isfinite(layer_d))
+    xyz = erp_directions(height, width).reshape(-1, 3)[at] * layer_d[at][:, None]
+    return PointCloud(xyz.astype(np.float32), rgb.reshape(-1, 3)[origin[at]])
 
 
 def disocclusion_fill_reference(

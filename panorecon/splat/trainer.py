@@ -63,6 +63,7 @@ class TrainConfig:
     sky: str = _f(
         "panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none"
     )
+    init_opacity: float = _f(0.1, "opacity of every initial Gaussian (3DGS: 0.1)")
     disocclusion_fill_deg: float = _f(
         10.0,
         "degrees of background added behind each depth edge of the cloud, as seen from the centre, for views "
@@ -236,6 +237,14 @@ def train(
         raise ValueError(f"strategy={cfg.strategy!r}: expected one of {', '.join(STRATEGIES)}")
     if cfg.sky not in ("panorama", "none"):
         raise ValueError(f"sky={cfg.sky!r}: expected panorama or none")
+    if not 0 <= cfg.densify_until <= 1:
+        raise ValueError(f"densify_until={cfg.densify_until!r}: expected a fraction of iters in [0, 1]")
+    if not cfg.grad_threshold > 0:
+        raise ValueError(f"grad_threshold={cfg.grad_threshold!r}: expected a gradient > 0")
+    if not 0 < cfg.init_opacity < 1:
+        raise ValueError(f"init_opacity={cfg.init_opacity!r}: expected an opacity in (0, 1)")
+    if not 0 <= cfg.disocclusion_fill_deg <= 180:
+        raise ValueError(f"disocclusion_fill_deg={cfg.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -274,7 +283,7 @@ def train(
         point_cloud = thin_cloud(
             point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point), cfg.seed
         )
-    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree).to(dev)
+    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [
         ("means", cfg.lr_means * extent),

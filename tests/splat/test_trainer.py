@@ -78,6 +78,25 @@ def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
         train(scene, pc, TrainConfig(**c, sky="blue"), tmp_path / "bad", progress=False)
 
 
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("densify_until", 1.5),
+        ("densify_until", -0.1),
+        ("grad_threshold", 0.0),
+        ("init_opacity", 1.0),
+        ("init_opacity", 0.0),
+        ("disocclusion_fill_deg", -1.0),
+        ("disocclusion_fill_deg", float("nan")),
+    ],
+)
+def test_bad_trainer_settings_are_one_clear_error_before_anything_is_written(setup, tmp_path, field, value):
+    scene, pc, _ = setup
+    with pytest.raises(ValueError, match=f"{field}="):
+        train(scene, pc, TrainConfig(iters=1, res=16, labels=4, **{field: value}), tmp_path / "bad", progress=False)
+    assert not (tmp_path / "bad").exists()
+
+
 def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     scene, pc, depth_fn = setup
     from panorecon.splat.initial import points_for_resolution
