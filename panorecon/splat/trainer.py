@@ -63,9 +63,11 @@ class TrainConfig:
     sky: str = _f(
         "panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none"
     )
-    init_opacity: float = _f(0.1, "opacity of every initial Gaussian (3DGS: 0.1)")
+    init_opacity: float = _f(
+        0.5, "opacity of every initial Gaussian (3DGS: 0.1; a dense fused cloud is a surface, see docs/benchmarks.md)"
+    )
     disocclusion_fill_deg: float = _f(
-        10.0,
+        20.0,
         "degrees of background added behind each depth edge of the cloud, as seen from the centre, for views "
         "that look behind it (0: none; splat/initial.py)",
     )
