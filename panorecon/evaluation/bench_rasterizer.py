@@ -8,7 +8,9 @@ pixels each at 256²), opacities 0.1-0.9, RGB colours. Median seconds over repea
 run once where one run exceeds 60 s, and says so), peak RSS of this process, ratio torch / cpu. With
 ``--stages``, also the cpu backend's time split at 256²/100k: projection forward, compositing forward,
 compositing backward, projection backward (each stage's backward run alone with ``torch.autograd.grad``), and
-the PyTorch reference projection's forward and backward in the same run.
+the PyTorch reference projection's forward and backward in the same run; and the degree-3 SH colours of the
+same Gaussians (forward + backward): the C++ kernel, which evaluates only the pairs with radius > 0, against
+``sh_to_rgb`` on every Gaussian (the reference and the torch backend's path), with their ratio.
 """
 
 from __future__ import annotations
@@ -91,7 +93,47 @@ def cpu_stages(size: int = 256, n: int = 100_000, repeats: int = 5) -> dict:
             if not prefix:
                 times["composite_forward"].append(t2 - t1)
                 times["composite_backward"].append(t3 - t2)
-    return {"size": size, "gaussians": n, **{k + "_ms": 1000 * statistics.median(v) for k, v in times.items()}}
+    sh = sh_stage(size, n, repeats)
+    return {
+        "size": size,
+        "gaussians": n,
+        **{k + "_ms": 1000 * statistics.median(v) for k, v in times.items()},
+        **sh,
+    }
+
+
+def sh_stage(size: int, n: int, repeats: int) -> dict:
+    """Median milliseconds of degree-3 SH colours forward + backward: C++ (visible pairs) and the einsum
+    reference (all pairs), the visible fraction and the ratio reference / C++."""
+    from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+    from panorecon.splat.rasterize import cpu_backend, sh_to_rgb
+
+    K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
+    V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
+    means, quats, scales, _, _ = scene(n)
+    # half the Gaussians mirrored behind the camera, as in a panorama's views where most of the sphere is unseen
+    means[: n // 2, 0] *= -1
+    radii = cpu_backend.project(means, quats, scales, V, K, size, size)[3]
+    coeffs = torch.randn(n, 16, 3, generator=torch.Generator().manual_seed(1)) * 0.1
+    campos = torch.zeros(1, 3)
+    times = {"sh_forward_backward": [], "reference_sh_forward_backward": []}
+    for _ in range(repeats):
+        for key in times:
+            c, m = coeffs.clone().requires_grad_(True), means.clone().requires_grad_(True)
+            t0 = time.perf_counter()
+            if key.startswith("reference"):
+                dirs = m[None] - campos[:, None]
+                cols = sh_to_rgb(3, c, dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+            else:
+                cols = cpu_backend.sh_colors(3, c, m, campos, radii)
+            cols.sum().backward()
+            times[key].append(time.perf_counter() - t0)
+    ms = {k + "_ms": 1000 * statistics.median(v) for k, v in times.items()}
+    return {
+        **ms,
+        "sh_visible_fraction": float((radii > 0).float().mean()),
+        "sh_speedup_cpu_vs_reference": ms["reference_sh_forward_backward_ms"] / ms["sh_forward_backward_ms"],
+    }
 
 
 def max_difference(size: int, n: int) -> dict:

@@ -48,6 +48,11 @@ def test_cpu_stages_times_every_stage():
         "projection_backward",
         "reference_projection_forward",
         "reference_projection_backward",
+        "sh_forward_backward",
+        "reference_sh_forward_backward",
     )
     assert out["size"] == 32 and out["gaussians"] == 300
     assert all(math.isfinite(out[s + "_ms"]) and 0 < out[s + "_ms"] < 10_000 for s in stages)
+    # the ratio is the two medians, and half the Gaussians (mirrored behind the camera) are never visible
+    assert out["sh_speedup_cpu_vs_reference"] == out["reference_sh_forward_backward_ms"] / out["sh_forward_backward_ms"]
+    assert 0 < out["sh_visible_fraction"] <= 0.5
