@@ -7,20 +7,10 @@ floor behind a bed's edge) has points only up to where the foreground hides it; 
 the edge into a hole. ``disocclusion_fill`` extends the background behind the foreground, as layered-depth
 methods do (Shade et al. 1998; Shih et al., 3D Photo Inpainting, 2020): each foreground pixel within
 ``fill_deg`` of an edge gets a second point on its ray at the background's distance, coloured like the
-background. From the centre these points lie behind opaque foreground, so the pseudo-labels neither see nor
-remove them; from elsewhere they fill the hole with the background's continuation instead of nothing.
-
-Initial opacity. 3DGS starts every Gaussian at opacity 0.1, right for sparse SfM points or a random volume, where
-a ray crosses many Gaussians. A depth-fused cloud is one surface seen from the centre (``is_centre_surface``):
-there it starts at 0.5, so the surface is opaque from the first step and the fill behind it stays hidden.
-
-Sky. Sources drop sky pixels (no finite distance), so without help the trainer covers the sky with Gaussians
-at arbitrary depths that look wrong from anywhere but the centre. A sky is infinitely far: its colour depends
-on the ray direction only. ``sky_environment`` keeps the panorama's sky pixels as an ERP environment map (other
-pixels take the colour of the nearest sky pixel, so sky that parallax reveals next to the horizon is sky
-coloured); the trainer composites ``image + (1 - alpha) x background(ray)`` for every view. It is fixed (not
-learned), so it cannot take over the geometry that the pseudo-labels, all seen from the centre, would let a
-learned map explain; it costs no Gaussians and adds nothing to the depth term (alpha is unchanged).
+background. From the centre these points lie behind the foreground, which hides them once it is opaque; from
+elsewhere they fill the hole with the background's continuation instead of nothing. (While every Gaussian is
+still see-through, at 3DGS's initial opacity of 0.1, the centre sees some of them and training thins them out:
+starting at 0.5 keeps more of them and gains indoors, but costs outdoors; docs/benchmarks.md.)
 """
 
 from __future__ import annotations
@@ -93,35 +83,6 @@ def _erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, n
     dist[ri[far_first], ci[far_first]] = r[ok][far_first]
     rgb[ri[far_first], ci[far_first]] = pc.rgb[ok][far_first]
     return dist, rgb
-
-
-SURFACE_OPACITY = 0.5  # initial opacity of a cloud that is one surface seen from the centre (measured: issue 19)
-VOLUME_OPACITY = 0.1  # 3DGS's initial opacity, for random or sparse (SfM) clouds
-
-
-def is_centre_surface(pc: PointCloud, height: int, width: int, jump: float = 0.1) -> bool:
-    """Whether ``pc`` is one surface as seen from the origin (the panorama centre), as every depth-fused source's
-    cloud is: on an ERP grid of ``height`` x ``width``, its nearest points cover neighbouring pixels (at least
-    one neighbouring pair per two points) whose distances mostly agree (the median relative difference of
-    neighbouring pixels below ``jump``). A random ball of points fails the second (its neighbours' distances
-    are unrelated), a sparse SfM cloud the first."""
-    if len(pc) == 0:
-        return False
-    dist, _ = _erp_zbuffer(pc, height, width)
-    a = np.concatenate([dist[:, :].ravel(), dist[:-1].ravel()])
-    b = np.concatenate([np.roll(dist, -1, 1).ravel(), dist[1:].ravel()])
-    both = np.isfinite(a) & np.isfinite(b)
-    if both.sum() < len(pc) / 2:
-        return False
-    return bool(np.median(np.abs(a[both] - b[both]) / np.minimum(a[both], b[both])) < jump)
-
-
-def initial_opacity(pc: PointCloud, height: int, width: int) -> float:
-    """``SURFACE_OPACITY`` for a cloud that ``is_centre_surface``, else ``VOLUME_OPACITY``. A surface is opaque
-    from the start, so the layer ``disocclusion_fill`` puts behind it stays hidden from the centre instead of
-    being seen through a see-through foreground and trained away; a volume of random points must start
-    see-through, or its nearest points hide everything behind them."""
-    return SURFACE_OPACITY if is_centre_surface(pc, height, width) else VOLUME_OPACITY
 
 
 def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float = 10.0, jump: float = 0.1) -> PointCloud:

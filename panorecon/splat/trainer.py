@@ -21,7 +21,6 @@ from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import MODEL_KEYS, checkpoint_inputs, load_checkpoint, save_checkpoint
 from .initial import (
     disocclusion_fill,
-    initial_opacity,
     points_for_resolution,
     sky_environment,
     thin_cloud,
@@ -70,11 +69,7 @@ class TrainConfig:
     sky: str = _f(
         "panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none"
     )
-    init_opacity: float = _f(
-        0.0,
-        "opacity of every initial Gaussian; 0: 0.5 when the cloud is one surface seen from the centre (every "
-        "depth-fused source), else 3DGS's 0.1 (random, SfM; splat/initial.initial_opacity)",
-    )
+    init_opacity: float = _f(0.1, "opacity of every initial Gaussian (3DGS: 0.1; see docs/benchmarks.md for 0.5)")
     disocclusion_fill_deg: float = _f(
         20.0,
         "degrees of background added behind each depth edge of the cloud, as seen from the centre, for views "
@@ -252,8 +247,8 @@ def train(
         raise ValueError(f"densify_until={cfg.densify_until!r}: expected a fraction of iters in [0, 1]")
     if not cfg.grad_threshold > 0:
         raise ValueError(f"grad_threshold={cfg.grad_threshold!r}: expected a gradient > 0")
-    if not 0 <= cfg.init_opacity < 1:
-        raise ValueError(f"init_opacity={cfg.init_opacity!r}: expected an opacity in (0, 1), or 0 for automatic")
+    if not 0 < cfg.init_opacity < 1:
+        raise ValueError(f"init_opacity={cfg.init_opacity!r}: expected an opacity in (0, 1)")
     if not 0 <= cfg.disocclusion_fill_deg <= 180:
         raise ValueError(f"disocclusion_fill_deg={cfg.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
     out = Path(out_dir)
@@ -282,7 +277,6 @@ def train(
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
-    opacity = cfg.init_opacity or initial_opacity(point_cloud, *scene.rgb.shape[:2])
     fill_points = 0
     if cfg.disocclusion_fill_deg:
         fill = disocclusion_fill(point_cloud, *scene.rgb.shape[:2], cfg.disocclusion_fill_deg)
@@ -295,7 +289,7 @@ def train(
         point_cloud = thin_cloud(
             point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point), cfg.seed
         )
-    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, opacity).to(dev)
+    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [
         ("means", cfg.lr_means * extent),
@@ -456,7 +450,6 @@ def train(
         gaussians=len(model),
         initial_gaussians=len(point_cloud),
         disocclusion_points=fill_points,
-        initial_opacity=opacity,
         backend=backend,
         strategy=cfg.strategy,
         peak_rss_mb=peak_rss_mb(),

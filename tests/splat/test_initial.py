@@ -8,12 +8,8 @@ from hypothesis import strategies as st
 from panorecon.geometry import PointCloud, erp_directions
 from panorecon.scenes import load_scene
 from panorecon.splat.initial import (
-    SURFACE_OPACITY,
-    VOLUME_OPACITY,
     disocclusion_fill,
     disocclusion_fill_reference,
-    initial_opacity,
-    is_centre_surface,
     points_for_resolution,
     sky_environment,
     thin_cloud,
@@ -174,20 +170,3 @@ def test_fill_matches_its_pixel_by_pixel_reference(seed, fill_deg, sky):
     for k, (d, col) in want.items():
         assert got[k][0] == pytest.approx(d, rel=1e-6)
         np.testing.assert_allclose(got[k][1], col, atol=1e-6)
-
-
-def test_a_depth_map_cloud_is_a_surface_and_a_random_ball_or_a_sparse_cloud_is_not():
-    H, W = 32, 64
-    dist = np.full((H, W), 3.0)
-    dist[10:20, 20:40] = 1.0  # furniture: edges are a minority of neighbouring pairs
-    dist[:4] = np.inf  # sky
-    surface, _ = erp_cloud(dist)
-    assert is_centre_surface(surface, H, W) and initial_opacity(surface, H, W) == SURFACE_OPACITY
-    rng = np.random.default_rng(0)
-    ball = rng.normal(size=(H * W, 3))
-    ball *= (rng.random(H * W) ** (1 / 3) * 5 / np.linalg.norm(ball, axis=1))[:, None]
-    random_cloud = PointCloud(ball.astype(np.float32), rng.random((H * W, 3)).astype(np.float32))
-    assert not is_centre_surface(random_cloud, H, W) and initial_opacity(random_cloud, H, W) == VOLUME_OPACITY
-    sparse = surface.subset(np.arange(0, len(surface), 9))  # one point in 9: few neighbouring pixels
-    assert not is_centre_surface(sparse, H, W)
-    assert not is_centre_surface(surface.subset(np.zeros(0, np.int64)), H, W)
