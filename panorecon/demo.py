@@ -17,7 +17,7 @@ def demo_pictures(
 ) -> dict:
     """From OUT/point_cloud.ply: OUT/renders/heldout_{size}_k.png (render | truth, ``size`` px tall; the first
     ``views`` held-out poses of a training run with this ``seed``) on scenes with a world, and
-    OUT/panorama.png (input above, render from the centre below). Returns the panorama's PSNR (dB)."""
+    OUT/panorama.png (input above, render from the centre below, 8 bits). Returns that picture's PSNR (dB)."""
     import json
 
     from .splat.labels import in_cloud_frame, make_heldout_views
@@ -55,8 +55,8 @@ def demo_pictures(
                 out / "renders" / f"heldout_{size}_{k}.png",
                 (np.concatenate([img, v.rgb], 1) * 255).round().astype(np.uint8),
             )
-    pano = render_panorama(model, scene.height, backend=backend)
-    truth = scene.rgb.astype(np.float32) / 255.0
-    write_image(out / "panorama.png", (np.concatenate([truth, pano], 0) * 255).round().astype(np.uint8))
-    mse = float(np.mean((pano - truth) ** 2))
+    pano = (render_panorama(model, scene.height, backend=backend) * 255).round().astype(np.uint8)
+    write_image(out / "panorama.png", np.concatenate([scene.rgb.astype(np.uint8), pano], 0))
+    # the PSNR of the picture as written (8 bits), so that anyone can recompute it from panorama.png
+    mse = float(np.mean((pano.astype(np.float64) / 255 - scene.rgb.astype(np.float64) / 255) ** 2))
     return {"panorama_psnr": math.inf if mse == 0 else 10 * math.log10(1 / mse)}
