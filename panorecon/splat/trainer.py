@@ -31,7 +31,7 @@ from .losses import ssim, total_loss
 from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
-from .strategy import PARAM_NAMES, STRATEGIES, edit_parameters
+from .strategy import STRATEGIES
 
 log = logging.getLogger("panorecon.train")
 
@@ -74,14 +74,6 @@ class TrainConfig:
         20.0,
         "degrees of background added behind each depth edge of the cloud, as seen from the centre, for views "
         "that look behind it (0: none; splat/initial.py)",
-    )
-    disocclusion_fill_at: float = _f(
-        1 / 6,
-        "fraction of iters at which the fill joins, once the surface in front of it is opaque from the centre "
-        "(0: in the initial cloud)",
-    )
-    disocclusion_opacity: float = _f(
-        0.5, "opacity of fill Gaussians that join late: hidden from the centre, they keep about what they start with"
     )
     init_pixels_per_point: float = _f(
         1.0,
@@ -257,10 +249,6 @@ def train(
         raise ValueError(f"grad_threshold={cfg.grad_threshold!r}: expected a gradient > 0")
     if not 0 < cfg.init_opacity < 1:
         raise ValueError(f"init_opacity={cfg.init_opacity!r}: expected an opacity in (0, 1)")
-    if not 0 <= cfg.disocclusion_fill_at < 1:
-        raise ValueError(f"disocclusion_fill_at={cfg.disocclusion_fill_at!r}: expected a fraction of iters in [0, 1)")
-    if not 0 < cfg.disocclusion_opacity < 1:
-        raise ValueError(f"disocclusion_opacity={cfg.disocclusion_opacity!r}: expected an opacity in (0, 1)")
     if not 0 <= cfg.disocclusion_fill_deg <= 180:
         raise ValueError(f"disocclusion_fill_deg={cfg.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
     out = Path(out_dir)
@@ -289,27 +277,19 @@ def train(
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
-    fill, fill_points = None, 0  # the fill's points: joined to the cloud now, or to the model at fill_step
+    fill_points = 0
     if cfg.disocclusion_fill_deg:
         fill = disocclusion_fill(point_cloud, *scene.rgb.shape[:2], cfg.disocclusion_fill_deg)
         fill_points = len(fill)
         log.info("disocclusion fill: %d points behind depth edges", fill_points)
-        if not cfg.disocclusion_fill_at or not fill_points:
-            point_cloud, fill = (
-                PointCloud(np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])),
-                None,
-            )
+        point_cloud = PointCloud(
+            np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])
+        )
     if cfg.init_pixels_per_point:
-        n_points = points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point)
-        if fill is not None and len(point_cloud) > n_points:  # the late fill thinned as the cloud is
-            fill = thin_cloud(fill, max(1, round(len(fill) * n_points / len(point_cloud))), cfg.seed)
-            fill_points = len(fill)
-        point_cloud = thin_cloud(point_cloud, n_points, cfg.seed)
+        point_cloud = thin_cloud(
+            point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point), cfg.seed
+        )
     model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
-    fill_step = int(cfg.disocclusion_fill_at * cfg.iters) if fill is not None else -1
-    late_fill = (
-        None if fill is None else GaussianModel.from_point_cloud(fill, cfg.sh_degree, cfg.disocclusion_opacity).to(dev)
-    )
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [
         ("means", cfg.lr_means * extent),
@@ -354,9 +334,6 @@ def train(
     order = gen.integers(0, len(labels), size=cfg.iters)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
     for it in bar:
-        if it == fill_step:  # behind a surface that is opaque by now: the centre's labels no longer see it
-            keep = torch.ones(len(model), dtype=torch.bool, device=dev)
-            edit_parameters(model, opt, keep, {n: getattr(late_fill, n).detach() for n in PARAM_NAMES})
         lr = cfg.lr_means * extent * (cfg.lr_means_final / cfg.lr_means) ** (it / max(cfg.iters - 1, 1))
         opt.param_groups[0]["lr"] = lr
         k = int(order[it])
@@ -473,7 +450,6 @@ def train(
         gaussians=len(model),
         initial_gaussians=len(point_cloud),
         disocclusion_points=fill_points,
-        disocclusion_step=max(fill_step, 0),
         backend=backend,
         strategy=cfg.strategy,
         peak_rss_mb=peak_rss_mb(),

@@ -88,8 +88,6 @@ def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
         ("init_opacity", 0.0),
         ("disocclusion_fill_deg", -1.0),
         ("disocclusion_fill_deg", float("nan")),
-        ("disocclusion_fill_at", 1.0),
-        ("disocclusion_opacity", 0.0),
     ],
 )
 def test_bad_trainer_settings_are_one_clear_error_before_anything_is_written(setup, tmp_path, field, value):
@@ -116,40 +114,12 @@ def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     n = points_for_resolution(16, 60.0, 4.0)
     assert n < len(pc)
     assert train(scene, pc, TrainConfig(**c), tmp_path / "a", progress=False)["initial_gaussians"] == n
-    early = {**c, "init_pixels_per_point": 0, "disocclusion_fill_at": 0.0}  # the fill in the initial cloud
-    kept = train(scene, pc, TrainConfig(**early), tmp_path / "b", progress=False)
+    kept = train(scene, pc, TrainConfig(**{**c, "init_pixels_per_point": 0}), tmp_path / "b", progress=False)
     assert kept["disocclusion_points"] > 0  # the bedroom's furniture has depth edges
     assert kept["initial_gaussians"] == len(pc) + kept["disocclusion_points"]
-    bare = TrainConfig(**{**early, "disocclusion_fill_deg": 0})
+    bare = TrainConfig(**{**c, "init_pixels_per_point": 0, "disocclusion_fill_deg": 0})
     m = train(scene, pc, bare, tmp_path / "c", progress=False)
     assert m["initial_gaussians"] == len(pc) and m["disocclusion_points"] == 0
-
-
-def test_a_late_fill_joins_the_model_at_its_step_with_its_opacity(setup, tmp_path, monkeypatch):
-    """disocclusion_fill_at = 0.5 of 20 steps: the model grows by the fill's points at step 10 (no densification
-    this early), the fill Gaussians start at disocclusion_opacity, and thinning thins the fill in proportion."""
-    scene, pc, depth_fn = setup
-    seen = []
-    real = trainer_mod.edit_parameters
-
-    def spy(model, opt, keep, new):
-        seen.append((len(model), {k: v.detach().clone() for k, v in new.items()}))
-        return real(model, opt, keep, new)
-
-    monkeypatch.setattr(trainer_mod, "edit_parameters", spy)
-    c = dict(iters=20, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=5, sh_degree=0)
-    late = TrainConfig(**c, init_pixels_per_point=0, disocclusion_fill_at=0.5, disocclusion_opacity=0.7)
-    m = train(scene, pc, late, tmp_path / "late", depth_fn, progress=False)
-    n_fill = m["disocclusion_points"]
-    assert n_fill > 0 and m["disocclusion_step"] == 10 and m["initial_gaussians"] == len(pc)
-    sizes = {h["iteration"]: h["gaussians"] for h in m["history"]}
-    assert sizes[5] == sizes[10] == len(pc) and sizes[15] == sizes[20] == len(pc) + n_fill
-    ((before, new),) = seen
-    assert before == len(pc) and len(new["means"]) == n_fill
-    torch.testing.assert_close(torch.sigmoid(new["logit_opacities"]), torch.full((n_fill,), 0.7))
-    thinned = train(scene, pc, TrainConfig(**c, init_pixels_per_point=4.0), tmp_path / "thin", progress=False)
-    ratio = thinned["initial_gaussians"] / len(pc)
-    assert thinned["disocclusion_points"] == max(1, round(n_fill * ratio))
 
 
 def interrupt_training(monkeypatch, run, at_step: int = 45) -> None:
