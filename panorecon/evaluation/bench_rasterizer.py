@@ -10,7 +10,7 @@ run once where one run exceeds 60 s, and says so), peak RSS of this process, rat
 compositing backward, projection backward (each stage's backward run alone with ``torch.autograd.grad``), and
 the PyTorch reference projection's forward and backward in the same run; and the degree-3 SH colours of the
 same Gaussians (forward + backward): the C++ kernel, which evaluates only the pairs with radius > 0, against
-``sh_to_rgb`` on every Gaussian (the reference and the torch backend's path), with their ratio.
+``sh_colors_reference`` on every Gaussian (the torch backend's path), with their ratio.
 """
 
 from __future__ import annotations
@@ -104,9 +104,10 @@ def cpu_stages(size: int = 256, n: int = 100_000, repeats: int = 5) -> dict:
 
 def sh_stage(size: int, n: int, repeats: int) -> dict:
     """Median milliseconds of degree-3 SH colours forward + backward: C++ (visible pairs) and the einsum
-    reference (all pairs), the visible fraction and the ratio reference / C++."""
+    reference ``sh_colors_reference`` (all pairs), the visible fraction and the ratio reference / C++."""
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-    from panorecon.splat.rasterize import cpu_backend, sh_to_rgb
+    from panorecon.splat.rasterize import cpu_backend
+    from panorecon.splat.rasterize.sh import sh_colors_reference
 
     K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
     V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
@@ -122,8 +123,7 @@ def sh_stage(size: int, n: int, repeats: int) -> dict:
             c, m = coeffs.clone().requires_grad_(True), means.clone().requires_grad_(True)
             t0 = time.perf_counter()
             if key.startswith("reference"):
-                dirs = m[None] - campos[:, None]
-                cols = sh_to_rgb(3, c, dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+                cols = sh_colors_reference(3, c, m, campos)
             else:
                 cols = cpu_backend.sh_colors(3, c, m, campos, radii)
             cols.sum().backward()

@@ -1,4 +1,4 @@
-"""The C++ SH colours (``cpu_backend.sh_colors``) against the PyTorch reference ``sh_to_rgb``: colours of the
+"""The C++ SH colours (``cpu_backend.sh_colors``) against the PyTorch reference ``sh_colors_reference``: colours of the
 pairs with radius > 0 and the gradients of coefficients and means (through the view direction), in float64 (to
 rounding) and float32 (to a stated tolerance), for every degree; culled pairs read 0 and pass no gradient."""
 
@@ -7,7 +7,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from panorecon.splat.rasterize import cpu_backend, sh_to_rgb
+from panorecon.splat.rasterize import cpu_backend
+from panorecon.splat.rasterize.sh import sh_colors_reference
 
 pytestmark = pytest.mark.skipif(not cpu_backend.available(), reason="the C++ rasterizer could not be built here")
 
@@ -38,9 +39,7 @@ def both(degree, n=300, seed=0, dtype=torch.float64):
         if fn == "cpu":
             colors = cpu_backend.sh_colors(degree, c, m, campos, radii)
         else:
-            dirs = m[None] - campos[:, None]
-            dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-            colors = sh_to_rgb(degree, c, dirs) * (radii[..., None] > 0)
+            colors = sh_colors_reference(degree, c, m, campos) * (radii[..., None] > 0)
         (colors * ups).sum().backward()
         grad_m = m.grad if m.grad is not None else torch.zeros_like(m)  # degree 0 does not read the direction
         out.append((colors.detach(), c.grad, grad_m))

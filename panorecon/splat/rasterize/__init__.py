@@ -11,7 +11,7 @@ import torch
 
 from . import cpu_backend, gsplat_backend
 from .projection import project_gaussians, quat_to_rotmat
-from .sh import sh_to_rgb
+from .sh import sh_colors_reference, sh_to_rgb
 from .torch_backend import rasterize_tiles
 
 BACKENDS = ("auto", "torch", "cpu", "gsplat")
@@ -125,9 +125,7 @@ def rasterize(
         if backend == "cpu":  # only the pairs the compositor reads (radius > 0)
             cols = cpu_backend.sh_colors(sh_degree, colors, means, campos, radii)
         else:
-            dirs = means[None] - campos[:, None]
-            dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-            cols = sh_to_rgb(sh_degree, colors, dirs)
+            cols = sh_colors_reference(sh_degree, colors, means, campos)
     if backend == "cpu":
         image, alpha, depth, contrib = cpu_backend.composite(
             means2d, conics, cols, opacities, depths, radii, width, height, tile_size, return_contrib

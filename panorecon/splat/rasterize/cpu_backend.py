@@ -20,6 +20,8 @@ from pathlib import Path
 
 import torch
 
+from .sh import check_sh
+
 log = logging.getLogger("panorecon.splat")
 _SOURCES = [
     Path(__file__).parent / "csrc" / f for f in ("module.cpp", "project_cpu.cpp", "sh_cpu.cpp", "rasterize_cpu.cpp")
@@ -150,14 +152,10 @@ class _ShColors(torch.autograd.Function):
 
 
 def sh_colors(degree: int, coeffs, means, campos, radii):
-    """``sh.sh_to_rgb`` in C++ for the (camera, Gaussian) pairs with radius > 0, in the dtype of ``means``:
+    """``sh.sh_colors_reference`` in C++ for the (camera, Gaussian) pairs with radius > 0, in the dtype of ``means``:
     coeffs [N,K,3], means [N,3], campos [C,3] camera centres, radii [C,N] -> colours [C,N,3], 0 (and no gradient)
     where culled. Differentiable w.r.t. coeffs and means (through the view direction)."""
-    if not 0 <= degree <= 3 or coeffs.shape[-2] < (degree + 1) ** 2:
-        raise ValueError(
-            f"sh_degree={degree} with {coeffs.shape[-2]} coefficients per channel: expected 0..3, "
-            "and (degree + 1)^2 coefficients or more"
-        )
+    check_sh(degree, coeffs)
     dtype = means.dtype if means.dtype in (torch.float32, torch.float64) else torch.float32
     f = lambda t: t.to(dtype).contiguous()  # noqa: E731
     return _ShColors.apply(f(coeffs), f(means), f(campos), radii.to(torch.int32).contiguous(), int(degree))

@@ -42,10 +42,26 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
     return torch.stack(out, -1)
 
 
+def check_sh(degree: int, coeffs: torch.Tensor) -> None:
+    """One clear error unless 0 <= ``degree`` <= 3 and coeffs [N, K, 3] has K >= (degree + 1)^2."""
+    if not 0 <= degree <= 3 or coeffs.shape[-2] < (degree + 1) ** 2:
+        raise ValueError(
+            f"sh_degree={degree} with {coeffs.shape[-2]} coefficients per channel: expected 0..3, "
+            "and (degree + 1)^2 coefficients or more"
+        )
+
+
 def sh_to_rgb(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
     """coeffs [N, K, 3] (K >= (degree + 1)^2), dirs [C, N, 3] unit -> colours [C, N, 3] = SH + 0.5, >= 0."""
+    check_sh(degree, coeffs)
     k = (degree + 1) ** 2
-    if coeffs.shape[-2] < k:
-        raise ValueError(f"SH coefficients have {coeffs.shape[-2]} bands per channel, degree {degree} needs {k}")
     basis = sh_basis(degree, dirs)  # [C, N, k]
     return (torch.einsum("cnk,nkd->cnd", basis, coeffs[:, :k]) + 0.5).clamp_min(0.0)
+
+
+def sh_colors_reference(degree: int, coeffs: torch.Tensor, means: torch.Tensor, campos: torch.Tensor) -> torch.Tensor:
+    """Colours [C, N, 3] of every Gaussian seen from camera centres campos [C, 3]: ``sh_to_rgb`` along
+    (mean - centre) / max(|mean - centre|, 1e-12). The torch backends' path, and the reference of the cpu
+    backend's ``sh_colors``."""
+    dirs = means[None] - campos[:, None]
+    return sh_to_rgb(degree, coeffs, dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12))
