@@ -315,11 +315,12 @@ def _data_rhs(level: _Level, data_w, s: np.ndarray) -> np.ndarray:
     return b
 
 
-def _data_mean(level: _Level, data_w, s: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+def _data_mean(level: _Level, data_w, data_rhs: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """[H*W] the data-weighted mean of each pixel's observations l_i + s_i (the level's own detail, at the current
-    per-view log-scales), ``fallback`` where no view observes the pixel: the CG's warm start."""
+    per-view log-scales; ``data_rhs`` = ``_data_rhs`` at those scales), ``fallback`` where no view observes the
+    pixel: the CG's warm start."""
     wsum = sum(np.bincount(o.index, w, minlength=len(fallback)) for o, w in zip(level.obs, data_w))
-    return np.where(wsum > 0, _data_rhs(level, data_w, s) / np.maximum(wsum, 1e-300), fallback)
+    return np.where(wsum > 0, data_rhs / np.maximum(wsum, 1e-300), fallback)
 
 
 def _update_scales(level: _Level, data_w, x: np.ndarray, metric: bool) -> np.ndarray:
@@ -497,7 +498,8 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         if s is None:
             s = _initial_scales(level, metric)
         coarse = np.zeros(h * 2 * h) if x is None else _upsample(x, prev_seen, prev_h, h)
-        x = coarse if x is not None and cfg.warm_start == "coarse" else _data_mean(level, data_w, s, coarse)
+        data_rhs = _data_rhs(level, data_w, s)  # at the current scales: the first solve's and the warm start's
+        x = coarse if x is not None and cfg.warm_start == "coarse" else _data_mean(level, data_w, data_rhs, coarse)
         its_total, resid = 0, float("nan")
         torch_cg = cfg.cg_device is not None and not direct
         mixed = not (direct or torch_cg) and cfg.preconditioner == "jacobi" and cfg.cg_precision == "mixed"
@@ -505,7 +507,7 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         finest = h == height
         tol = cfg.tol if finest else max(cfg.tol, cfg.coarse_tol)
         for _ in range(max(1, cfg.scale_iters) if (h <= cfg.scale_max_height or li == 0) else 1):
-            rhs = b0 + _data_rhs(level, data_w, s)
+            rhs = b0 + data_rhs
             if torch_cg:
                 x, its, resid = _solve_torch(A, rhs, x, tol, cfg.maxiter, cfg.cg_device)
             elif mixed:
@@ -520,6 +522,7 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
             s = s_new
             if converged:
                 break
+            data_rhs = _data_rhs(level, data_w, s)
         report["levels"].append(
             {
                 "height": h,
