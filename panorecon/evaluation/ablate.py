@@ -267,7 +267,7 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
             history=";".join(f"{h['iteration']}:{h['psnr']:.3f}" for h in m["history"]),
             # held-out PSNR against training seconds (runs made before it was recorded have none)
             history_heldout=";".join(
-                f"{h['seconds']:.2f}:{h['heldout_psnr']:.3f}"
+                f"{h['seconds']:.4f}:{h['heldout_psnr']:.3f}"
                 for h in m["history"]
                 if "heldout_psnr" in h and "seconds" in h
             )
