@@ -20,6 +20,7 @@ import json
 def main(argv=None) -> dict:
     import torch
 
+    from panorecon.cli import TRAIN_VIEWS
     from panorecon.pipeline import teacher_depth_fn
     from panorecon.pipeline.stages import fusion_config_for
     from panorecon.scenes import load_scene
@@ -31,6 +32,13 @@ def main(argv=None) -> dict:
     ap.add_argument("overrides", nargs="*", help="TrainConfig field=value")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--teacher", default="sim:relative", help="depth teacher of the cloud and the depth term")
+    ap.add_argument("--views", type=int, default=TRAIN_VIEWS["fibonacci"], help="views of the fibonacci source")
+    ap.add_argument(
+        "--depth-target",
+        choices=("teacher", "fused"),
+        default="teacher",
+        help="the Pearson term's depth: the teacher's per-view maps or the fused cloud's ERP depth seen by each view",
+    )
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -42,13 +50,22 @@ def main(argv=None) -> dict:
             ap.error(f"{item!r}: {key!r} is not a TrainConfig field ({', '.join(types)})")
         setattr(cfg, key, types[key](value))
     scene = load_scene("bedroom", 512)
-    pc, report = run_source(scene, "fibonacci", args.teacher, None, fusion_config_for(torch.device("cpu")))
+    pc, report = run_source(scene, "fibonacci", args.teacher, args.views, fusion_config_for(torch.device("cpu")))
+    if args.depth_target == "fused":
+        from panorecon.geometry import erp_to_perspective
+
+        erp = pc.meta["erp_distance"]
+        depth_fn = lambda cams: [  # noqa: E731
+            (erp_to_perspective(erp, c) / c.z_to_distance_factor()).astype("float32") for c in cams
+        ]
+    else:
+        depth_fn = teacher_depth_fn(scene, args.teacher)
     m = train(
         scene,
         pc,
         cfg,
         args.out,
-        teacher_depth_fn(scene, args.teacher),
+        depth_fn,
         progress=False,
         device="cpu",
         heldout_scale=cloud_scale(report),

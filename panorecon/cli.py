@@ -117,7 +117,7 @@ def cmd_inspect(args) -> int:
 
 def cmd_demo(args) -> int:
     """The main job on the built-in default scene: render, ground-truth cloud and its screenshot, the method's
-    initial cloud (20 Fibonacci views, simulated teacher, log-depth fusion) with its report, a short Gaussian
+    initial cloud (40 Fibonacci views, simulated teacher, log-depth fusion) with its report, a short Gaussian
     training from it (point_cloud.ply, renders/, metrics.json), held-out renders at 256 px and the panorama
     rendered back from the Gaussians (panorama.png). Its settings are explicit here, not train's defaults."""
     from .demo import demo_pictures
@@ -149,7 +149,7 @@ def cmd_demo(args) -> int:
             scene=scene,
             source="fibonacci",
             teacher=args.teacher,
-            views=None,
+            views=TRAIN_VIEWS["fibonacci"],
             width=args.width,
             iters=args.iters,
             res=args.res,
@@ -248,6 +248,12 @@ def cmd_points(args) -> int:
     return 0
 
 
+# `train`'s point-source views where they differ from the source's own default (Fibonacci: 20, the paper's):
+# 40 views give each direction twice the overlaps to average the teacher's per-view error over (issue 19;
+# docs/benchmarks.md "Time to quality")
+TRAIN_VIEWS = {"fibonacci": 40}
+
+
 def cmd_train(args) -> int:
     import dataclasses
 
@@ -261,6 +267,8 @@ def cmd_train(args) -> int:
     _check_backend(args, device)
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
+    if args.views is None:
+        args = argparse.Namespace(**{**vars(args), "views": TRAIN_VIEWS.get(args.source)})
     scene = scene_from_args(args)
     out = Path(args.out)
     pc, report = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
@@ -449,7 +457,13 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("scene")
     tr.add_argument("--source", required=True)
     tr.add_argument("--teacher", default=None, help="depth teacher for the source and the Pearson depth term")
-    tr.add_argument("--views", type=T.VIEWS, default=None, help="views of the point source")
+    tr.add_argument(
+        "--views",
+        type=T.VIEWS,
+        default=None,
+        help=f"views of the point source (default: {', '.join(f'{v} for {k}' for k, v in TRAIN_VIEWS.items())}, "
+        "the source's own otherwise)",
+    )
     tr.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
     tr.add_argument("--iters", type=T.ITERS, default=None, help="optimisation steps (default 3000)")
     tr.add_argument("--res", type=T.LABEL_RES, default=None, help="label view size in pixels (default 128)")

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from panorecon.cli import main
+from panorecon.cli import TRAIN_VIEWS, main
 from panorecon.io import read_image
 
 
@@ -177,6 +177,8 @@ def test_train_command(tmp_path, capsys):
     m = json.loads((tmp_path / "t" / "metrics.json").read_text())
     assert m["iterations"] == 20 and "psnr" in m["pseudo-label"] and "psnr" in m["held-out"]
     assert "pseudo-label PSNR" in capsys.readouterr().out
+    report = json.loads((tmp_path / "t" / "fibonacci_report.json").read_text())
+    assert report["views"] == TRAIN_VIEWS["fibonacci"] == 40  # train's default, not the source's 20
 
 
 @pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has CUDA")

@@ -31,7 +31,7 @@ from .losses import ssim, total_loss
 from .model import GaussianModel
 from .ply import save_ply
 from .rasterize import rasterize, resolve_backend
-from .strategy import STRATEGIES
+from .strategy import PARAM_NAMES, STRATEGIES, edit_parameters
 
 log = logging.getLogger("panorecon.train")
 
@@ -75,6 +75,16 @@ class TrainConfig:
         "degrees of background added behind each depth edge of the cloud, as seen from the centre, for views "
         "that look behind it (0: none; splat/initial.py)",
     )
+    disocclusion_fill_visits: float = _f(
+        40.0,
+        "label views that have seen each direction, on average, when the fill joins the model: the surface in "
+        "front of it is opaque from the centre by then, so it keeps its colour and opacity for the views that look "
+        "behind (step ~500 at 60 deg). A run that gets there only after half its steps takes the fill into its "
+        "initial cloud instead (0: always there)",
+    )
+    disocclusion_opacity: float = _f(
+        0.9, "opacity of fill Gaussians that join late: hidden from the centre, they keep about what they start with"
+    )
     init_pixels_per_point: float = _f(
         1.0,
         "label pixels per initial point over the sphere: the source's cloud is "
@@ -84,6 +94,17 @@ class TrainConfig:
 
     def digest(self) -> str:
         return hashlib.sha256(json.dumps(dataclasses.asdict(self), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def fill_join_step(cfg: TrainConfig) -> int:
+    """The step at which the disocclusion fill joins the model: once each direction has been seen by
+    ``cfg.disocclusion_fill_visits`` label views on average (one view per step, each covering the solid angle of
+    a square ``fov_deg`` pinhole view, 4 asin(sin^2(fov / 2)) sr); 0, the initial cloud, when that step is not
+    before half of ``cfg.iters`` or visits is 0."""
+    half_fov = math.radians(cfg.fov_deg) / 2
+    share = math.asin(math.sin(half_fov) ** 2) / math.pi  # the view's solid angle over 4 pi
+    step = math.ceil(round(cfg.disocclusion_fill_visits / share, 6))  # rounded: sin(45 deg)^2 is 0.5 + 1 ulp
+    return step if 0 < step < cfg.iters / 2 else 0
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -249,6 +270,12 @@ def train(
         raise ValueError(f"grad_threshold={cfg.grad_threshold!r}: expected a gradient > 0")
     if not 0 < cfg.init_opacity < 1:
         raise ValueError(f"init_opacity={cfg.init_opacity!r}: expected an opacity in (0, 1)")
+    if not (math.isfinite(cfg.disocclusion_fill_visits) and cfg.disocclusion_fill_visits >= 0):
+        raise ValueError(
+            f"disocclusion_fill_visits={cfg.disocclusion_fill_visits!r}: expected a finite number of views >= 0"
+        )
+    if not 0 < cfg.disocclusion_opacity < 1:
+        raise ValueError(f"disocclusion_opacity={cfg.disocclusion_opacity!r}: expected an opacity in (0, 1)")
     if not 0 <= cfg.disocclusion_fill_deg <= 180:
         raise ValueError(f"disocclusion_fill_deg={cfg.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
     out = Path(out_dir)
@@ -277,19 +304,27 @@ def train(
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
-    fill_points = 0
+    fill, fill_points = None, 0  # the fill's points: joined to the cloud now, or to the model at fill_step
     if cfg.disocclusion_fill_deg:
         fill = disocclusion_fill(point_cloud, *scene.rgb.shape[:2], cfg.disocclusion_fill_deg)
         fill_points = len(fill)
         log.info("disocclusion fill: %d points behind depth edges", fill_points)
-        point_cloud = PointCloud(
-            np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])
-        )
+        if not fill_join_step(cfg) or not fill_points:
+            point_cloud, fill = (
+                PointCloud(np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])),
+                None,
+            )
     if cfg.init_pixels_per_point:
-        point_cloud = thin_cloud(
-            point_cloud, points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point), cfg.seed
-        )
+        n_points = points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point)
+        if fill is not None and len(point_cloud) > n_points:  # the late fill thinned as the cloud is
+            fill = thin_cloud(fill, max(1, round(len(fill) * n_points / len(point_cloud))), cfg.seed)
+            fill_points = len(fill)
+        point_cloud = thin_cloud(point_cloud, n_points, cfg.seed)
     model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
+    fill_step = fill_join_step(cfg) if fill is not None else -1
+    late_fill = (
+        None if fill is None else GaussianModel.from_point_cloud(fill, cfg.sh_degree, cfg.disocclusion_opacity).to(dev)
+    )
     extent = float(np.percentile(np.linalg.norm(point_cloud.xyz, axis=1), 90)) or 1.0
     groups = [
         ("means", cfg.lr_means * extent),
@@ -334,6 +369,9 @@ def train(
     order = gen.integers(0, len(labels), size=cfg.iters)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
     for it in bar:
+        if it == fill_step:  # behind a surface that is opaque by now: the centre's labels no longer see it
+            keep = torch.ones(len(model), dtype=torch.bool, device=dev)
+            edit_parameters(model, opt, keep, {n: getattr(late_fill, n).detach() for n in PARAM_NAMES})
         lr = cfg.lr_means * extent * (cfg.lr_means_final / cfg.lr_means) ** (it / max(cfg.iters - 1, 1))
         opt.param_groups[0]["lr"] = lr
         k = int(order[it])
@@ -450,6 +488,7 @@ def train(
         gaussians=len(model),
         initial_gaussians=len(point_cloud),
         disocclusion_points=fill_points,
+        disocclusion_step=max(fill_step, 0),
         backend=backend,
         strategy=cfg.strategy,
         peak_rss_mb=peak_rss_mb(),

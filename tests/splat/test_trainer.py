@@ -1,4 +1,5 @@
 import json
+import math
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from panorecon.splat import trainer as trainer_mod
 from panorecon.splat.model import GaussianModel
 from panorecon.splat.ply import load_ply
 from panorecon.splat.strategy import DefaultStrategy, edit_parameters
-from panorecon.splat.trainer import TrainConfig, train
+from panorecon.splat.trainer import TrainConfig, fill_join_step, train
 from panorecon.teachers import get_teacher
 
 
@@ -88,6 +89,9 @@ def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
         ("init_opacity", 0.0),
         ("disocclusion_fill_deg", -1.0),
         ("disocclusion_fill_deg", float("nan")),
+        ("disocclusion_fill_visits", -1.0),
+        ("disocclusion_fill_visits", float("inf")),
+        ("disocclusion_opacity", 0.0),
     ],
 )
 def test_bad_trainer_settings_are_one_clear_error_before_anything_is_written(setup, tmp_path, field, value):
@@ -114,12 +118,53 @@ def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     n = points_for_resolution(16, 60.0, 4.0)
     assert n < len(pc)
     assert train(scene, pc, TrainConfig(**c), tmp_path / "a", progress=False)["initial_gaussians"] == n
-    kept = train(scene, pc, TrainConfig(**{**c, "init_pixels_per_point": 0}), tmp_path / "b", progress=False)
+    early = {**c, "init_pixels_per_point": 0, "disocclusion_fill_visits": 0.0}  # the fill in the initial cloud
+    kept = train(scene, pc, TrainConfig(**early), tmp_path / "b", progress=False)
     assert kept["disocclusion_points"] > 0  # the bedroom's furniture has depth edges
     assert kept["initial_gaussians"] == len(pc) + kept["disocclusion_points"]
-    bare = TrainConfig(**{**c, "init_pixels_per_point": 0, "disocclusion_fill_deg": 0})
+    bare = TrainConfig(**{**early, "disocclusion_fill_deg": 0})
     m = train(scene, pc, bare, tmp_path / "c", progress=False)
     assert m["initial_gaussians"] == len(pc) and m["disocclusion_points"] == 0
+
+
+def test_the_fill_joins_once_each_direction_has_been_seen_enough_and_short_runs_start_with_it():
+    """40 visits of 60-degree views (each 4 asin(1/4) sr of the sphere): step 498; at 300 steps that is past
+    half the run, so the fill is in the initial cloud (step 0), as it is with visits 0."""
+    assert fill_join_step(TrainConfig(iters=3000)) == math.ceil(40 * math.pi / math.asin(0.25)) == 498
+    assert fill_join_step(TrainConfig(iters=997)) == 498 and fill_join_step(TrainConfig(iters=996)) == 0
+    assert fill_join_step(TrainConfig(iters=300)) == 0
+    assert fill_join_step(TrainConfig(iters=3000, disocclusion_fill_visits=0)) == 0
+    wide = TrainConfig(iters=3000, fov_deg=90.0)  # a 90-degree view covers 4 asin(1/2) = 2.09 sr
+    assert fill_join_step(wide) == math.ceil(40 * math.pi / math.asin(0.5))
+
+
+def test_a_late_fill_joins_the_model_at_its_step_with_its_opacity(setup, tmp_path, monkeypatch):
+    """Visits 0.8 of 24 steps joins at step 10 (no densification this early): the model grows by the fill's
+    points there, the fill Gaussians start at disocclusion_opacity, and thinning thins the fill in proportion."""
+    scene, pc, depth_fn = setup
+    seen = []
+    real = trainer_mod.edit_parameters
+
+    def spy(model, opt, keep, new):
+        seen.append((len(model), {k: v.detach().clone() for k, v in new.items()}))
+        return real(model, opt, keep, new)
+
+    monkeypatch.setattr(trainer_mod, "edit_parameters", spy)
+    c = dict(iters=24, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=5, sh_degree=0)
+    c["disocclusion_fill_visits"] = 0.8
+    late = TrainConfig(**c, init_pixels_per_point=0, disocclusion_opacity=0.7)
+    assert fill_join_step(late) == 10
+    m = train(scene, pc, late, tmp_path / "late", depth_fn, progress=False)
+    n_fill = m["disocclusion_points"]
+    assert n_fill > 0 and m["disocclusion_step"] == 10 and m["initial_gaussians"] == len(pc)
+    sizes = {h["iteration"]: h["gaussians"] for h in m["history"]}
+    assert sizes[5] == sizes[10] == len(pc) and sizes[15] == sizes[20] == len(pc) + n_fill
+    ((before, new),) = seen
+    assert before == len(pc) and len(new["means"]) == n_fill
+    torch.testing.assert_close(torch.sigmoid(new["logit_opacities"]), torch.full((n_fill,), 0.7))
+    thinned = train(scene, pc, TrainConfig(**c, init_pixels_per_point=4.0), tmp_path / "thin", progress=False)
+    ratio = thinned["initial_gaussians"] / len(pc)
+    assert thinned["disocclusion_points"] == max(1, round(n_fill * ratio))
 
 
 def interrupt_training(monkeypatch, run, at_step: int = 45) -> None:
