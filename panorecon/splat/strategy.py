@@ -139,20 +139,22 @@ class DefaultStrategy:
 class AdaptiveStrategy(DefaultStrategy):
     """Contribution-based pruning (paper §2.5), on top of the 3DGS densification.
 
-    Per training view a Gaussian's blending contribution is weight_sum = sum over pixels of alpha x T (in
-    pixels at the training resolution) and its surface evidence trans_max = the largest transmittance in front of
-    it where it was composited. Between refinements each Gaussian keeps its ``top_k`` largest per-view
-    contributions; its score is their mean (views it was not seen from count as 0). At a refinement a Gaussian
-    that some view had in its frustum is pruned when score < threshold(it), unless it is a surface Gaussian:
-    trans_max >= ``surface_transmittance`` in some view, i.e. it lies at or before the depth where its ray's
-    transmittance halves (the first surface, as the median depth defines it), so thin surface detail survives
-    even with a small footprint, while internal Gaussians hidden behind the surface are removed.
+    Per training view a Gaussian's blending contribution is weight_sum = sum over pixels of alpha x T, counted in
+    pixels of a ``reference_size``² view of the same field of view (weight_sum x reference_size² / (W H)), so a
+    threshold prunes Gaussians of the same angular footprint at any training resolution; its surface evidence
+    trans_max = the largest transmittance in front of it where it was composited. Between refinements each Gaussian
+    keeps its ``top_k`` largest per-view contributions; its score is their mean (views it was not seen from count as
+    0). At a refinement a Gaussian that some view had in its frustum is pruned when score < threshold(it), unless it
+    is a surface Gaussian: trans_max >= ``surface_transmittance`` in some view, i.e. it lies at or before the depth
+    where its ray's transmittance halves (the first surface, as the median depth defines it), so thin surface detail
+    survives even with a small footprint, while internal Gaussians hidden behind the surface are removed.
     Relaxation: no contribution pruning for the first ``relax_fraction`` of the refinement window, then the
     threshold rises linearly from ``threshold_start`` to ``threshold_end`` at ``prune_until`` x iterations.
     Opacity pruning (< ``prune_opacity``) stays on throughout.
     """
 
     top_k: int = 5
+    reference_size: int = 256  # contributions and thresholds in pixels of a 256² view
     threshold_start: float = 0.05
     threshold_end: float = 0.5
     surface_transmittance: float = 0.5
@@ -180,14 +182,16 @@ class AdaptiveStrategy(DefaultStrategy):
             dev = model.means.device
             self.top_contrib = torch.zeros(n, self.top_k, device=dev)
             self.trans_max, self.seen = torch.zeros(n, device=dev), torch.zeros(n, dtype=torch.bool, device=dev)
+        to_reference = self.reference_size**2 / (width * height)
         for c in range(meta["weight_sum"].shape[0]):
-            both = torch.cat([self.top_contrib, meta["weight_sum"][c, :, None].float()], 1)
+            both = torch.cat([self.top_contrib, meta["weight_sum"][c, :, None].float() * to_reference], 1)
             self.top_contrib = both.topk(self.top_k, dim=1).values
             self.trans_max = torch.maximum(self.trans_max, meta["trans_max"][c].float())
             self.seen |= meta["radii"][c] > 0
 
     def threshold(self, it: int) -> float:
-        """The contribution threshold at iteration ``it`` (pixels); 0 during the relaxation stage."""
+        """The contribution threshold at iteration ``it`` (pixels of a ``reference_size``² view); 0 during the
+        relaxation stage."""
         relax_end = self.refine_start + self.relax_fraction * (self.refine_stop - self.refine_start)
         if it < relax_end:
             return 0.0

@@ -291,9 +291,13 @@ def test_adaptive_strategy_prunes_hidden_gaussians_and_protects_surface_detail()
         threshold_start=10.0,
         threshold_end=20.0,
         relax_fraction=0.5,
+        reference_size=64,  # the views' own pixels
     )
     _observe_views(s, model)
     score = s.top_contrib.mean(1)
+    at_256 = AdaptiveStrategy(reference_size=256)
+    _observe_views(at_256, _stack_scene())
+    torch.testing.assert_close(at_256.top_contrib.mean(1), score * 16)  # in pixels of a 256² view
     # the wall contributes thousands of pixels; the detail a few; the hidden one only what leaks through the wall
     assert score[0] > 1000 and score[1] < 5.0 and score[2] < 10.0
     assert s.trans_max[1] > 0.9 and s.trans_max[2] < 0.2  # < surface_transmittance 0.5
@@ -315,7 +319,9 @@ def test_adaptive_strategy_in_the_relaxation_stage_prunes_nothing():
             for n in ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")
         ]
     )
-    s = AdaptiveStrategy(refine_start=0, refine_stop=100, refine_every=10, grad_threshold=1e9, relax_fraction=0.5)
+    s = AdaptiveStrategy(
+        refine_start=0, refine_stop=100, refine_every=10, grad_threshold=1e9, relax_fraction=0.5, reference_size=64
+    )
     _observe_views(s, model)
     assert s.step(model, opt, 20, extent=1.0)["pruned"] == 0 and len(model) == 3
 
