@@ -1,10 +1,12 @@
-"""One trainer lever at a time on issue 19's setting: bedroom at 512 wide, the fibonacci cloud from
-``sim:relative``, 240 pseudo-labels of 256², the ``cpu`` backend, ``train``'s defaults otherwise; any
+"""One trainer lever at a time on issue 19's setting: bedroom (or ``--scene``) at 512 wide, the fibonacci cloud
+(``--views``, default ``train``'s 40) from ``sim:relative``, 240 pseudo-labels of 256², the ``cpu`` backend,
+``train``'s defaults otherwise; any
 ``TrainConfig`` field changed by ``key=value``. Prints one JSON line (held-out PSNR, training seconds, Gaussians,
 the best history sample and the history as (iteration, seconds, held-out PSNR)).
 
     python eval/train_levers.py OUT [key=value ...] [--threads N]
     python eval/train_levers.py out/ref10k iters=10000 init_pixels_per_point=0 --threads 1
+    python eval/train_levers.py out/beach20 disocclusion_fill_visits=0 --views 20 --scene beach
 
 The cloud is the one ``panorecon train`` would start from (``run_source`` with the same fusion settings);
 held-out cameras are placed in the cloud's scale exactly as ``panorecon train`` places them.
@@ -32,6 +34,7 @@ def main(argv=None) -> dict:
     ap.add_argument("overrides", nargs="*", help="TrainConfig field=value")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--teacher", default="sim:relative", help="depth teacher of the cloud and the depth term")
+    ap.add_argument("--scene", default="bedroom", help="scene at 512 wide (issue 19's: bedroom)")
     ap.add_argument("--views", type=int, default=TRAIN_VIEWS["fibonacci"], help="views of the fibonacci source")
     ap.add_argument(
         "--depth-target",
@@ -49,7 +52,7 @@ def main(argv=None) -> dict:
         if key not in types:
             ap.error(f"{item!r}: {key!r} is not a TrainConfig field ({', '.join(types)})")
         setattr(cfg, key, types[key](value))
-    scene = load_scene("bedroom", 512)
+    scene = load_scene(args.scene, 512)
     pc, report = run_source(scene, "fibonacci", args.teacher, args.views, fusion_config_for(torch.device("cpu")))
     if args.depth_target == "fused":
         from panorecon.geometry import erp_to_perspective
@@ -72,6 +75,7 @@ def main(argv=None) -> dict:
     )
     row = {
         "out": args.out,
+        "scene": args.scene,
         "overrides": args.overrides,
         "teacher": args.teacher,
         "heldout_psnr": m["held-out"]["psnr"],
