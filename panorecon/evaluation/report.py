@@ -122,6 +122,48 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
         Path(tmp).write_text("\n".join(parts))
 
 
+# label positions tried in turn, in points from the marker: right above, right below, left above, left below,
+# then three times as far up or down
+_LABEL_OFFSETS = [
+    (4, 5, "left", "bottom"),
+    (4, -5, "left", "top"),
+    (-4, 5, "right", "bottom"),
+    (-4, -5, "right", "top"),
+]
+_LABEL_OFFSETS += [(dx, 3 * dy, ha, va) for dx, dy, ha, va in _LABEL_OFFSETS]
+
+
+def _annotate(ax, point: tuple[float, float, str, str], offset: tuple, fontsize: float, renderer):
+    """-> (annotation of ``point`` = (x, y, text, colour) at ``offset``, its box in display pixels)."""
+    x, y, text, colour = point
+    dx, dy, ha, va = offset
+    t = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points", ha=ha, va=va)
+    t.set(fontsize=fontsize, color=colour)
+    return t, t.get_window_extent(renderer)
+
+
+def place_labels(ax, points: list[tuple[float, float, str, str]], fontsize: float) -> list:
+    """Label each (x, y, text, colour) at the first of ``_LABEL_OFFSETS`` whose text box stays inside the axes and
+    overlaps no label placed before it (points taken left to right; the first offset when none is free). Call
+    once the axes' limits and layout are final: the boxes are measured in display pixels. -> the annotations."""
+    ax.autoscale_view()
+    renderer = ax.figure.canvas.get_renderer()
+    frame = ax.get_window_extent(renderer)
+    boxes, texts = [], []
+    for point in sorted(points, key=lambda p: (p[0], p[1])):
+        for offset in _LABEL_OFFSETS:
+            t, box = _annotate(ax, point, offset, fontsize, renderer)
+            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
+            if inside and not any(box.overlaps(b) for b in boxes):
+                break
+            t.remove()
+        else:  # nowhere free: the first position
+            t, box = _annotate(ax, point, _LABEL_OFFSETS[0], fontsize, renderer)
+        boxes.append(box)
+        texts.append(t)
+    return texts
+
+
 def pareto_plot(
     mean: pd.DataFrame,
     per_run: pd.DataFrame,
@@ -142,27 +184,17 @@ def pareto_plot(
     import matplotlib.ticker
 
     fig, (ax_runs, ax_mean) = plt.subplots(1, 2, figsize=(13, 5.2))
+    run_labels = []  # (x, y, text, colour), placed once the layout is final
     for k, (scene, g) in enumerate(per_run.groupby("scene", sort=False) if "scene" in per_run else [("runs", per_run)]):
         ax_runs.scatter(g[x], g[y], s=18, color=f"C{k}", label=str(scene))
-        for j, (_, r) in enumerate(g.iterrows()):
-            ax_runs.annotate(
-                str(r[label_col]),
-                (r[x], r[y]),
-                fontsize=6,
-                color=f"C{k}",
-                xytext=(3, 6 if j % 2 else -9),
-                textcoords="offset points",
-            )
+        run_labels += [(r[x], r[y], str(r[label_col]), f"C{k}") for _, r in g.iterrows()]
     ax_runs.set(xlabel=f"{x} (seconds, log)", ylabel=ylabel, xscale="log", title="every run, by scene")
     ax_runs.legend(fontsize=7)
     sign = -1 if higher_is_better else 1
     pts = list(zip(mean[x], sign * mean[y]))
     front = pareto(pts)
-    for i, (label, r) in enumerate(mean.iterrows()):
+    for i, (_, r) in enumerate(mean.iterrows()):
         ax_mean.scatter(r[x], r[y], s=40, color="C3" if i in front else "C0", zorder=3)
-        ax_mean.annotate(
-            str(label), (r[x], r[y]), fontsize=8, xytext=(4, 7 if i % 2 else -11), textcoords="offset points"
-        )
     fp = sorted((mean[x].iloc[i], mean[y].iloc[i]) for i in front)
     ax_mean.plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1.2, label="Pareto front (red)")
     ax_mean.set(
@@ -184,6 +216,8 @@ def pareto_plot(
         ax.xaxis.set_minor_formatter(PlainLogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
     fig.suptitle(title)
     fig.tight_layout()
+    place_labels(ax_runs, run_labels, fontsize=6)
+    place_labels(ax_mean, [(r[x], r[y], str(label), "black") for label, r in mean.iterrows()], fontsize=8)
     with atomic_write(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
