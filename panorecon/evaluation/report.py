@@ -144,17 +144,22 @@ def _annotate(ax, point: tuple[float, float, str, str], offset: tuple, fontsize:
 
 def place_labels(ax, points: list[tuple[float, float, str, str]], fontsize: float) -> list:
     """Label each (x, y, text, colour) at the first of ``_LABEL_OFFSETS`` whose text box stays inside the axes and
-    overlaps no label placed before it (points taken left to right; the first offset when none is free). Call
+    overlaps no marker and no label placed before it (points taken left to right; the first offset when none is
+    free). Call
     once the axes' limits and layout are final: the boxes are measured in display pixels. -> the annotations."""
+    from matplotlib.transforms import Bbox
+
     ax.autoscale_view()
     renderer = ax.figure.canvas.get_renderer()
     frame = ax.get_window_extent(renderer)
+    at = ax.transData.transform([(p[0], p[1]) for p in points]) if points else []
+    markers = [Bbox.from_extents(u - 4, v - 4, u + 4, v + 4) for u, v in at]  # every point's marker, ~8 px
     boxes, texts = [], []
     for point in sorted(points, key=lambda p: (p[0], p[1])):
         for offset in _LABEL_OFFSETS:
             t, box = _annotate(ax, point, offset, fontsize, renderer)
             inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
-            if inside and not any(box.overlaps(b) for b in boxes):
+            if inside and not any(box.overlaps(b) for b in boxes + markers):
                 break
             t.remove()
         else:  # nowhere free: the first position

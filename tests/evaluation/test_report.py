@@ -34,6 +34,8 @@ def test_labels_of_crowded_points_do_not_overlap(n):
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
     frame = ax.get_window_extent(renderer)
     assert all(frame.x0 <= b.x0 and b.x1 <= frame.x1 for b in boxes)  # "random" sits at the right edge
+    for (u, v), (x, y, _, _) in zip(ax.transData.transform([p[:2] for p in points]), points):
+        assert not any(b.contains(u, v) for b in boxes), f"a label covers the marker at ({x}, {y})"
     plt.close(fig)
 
 
