@@ -145,8 +145,8 @@ def _annotate(ax, point: tuple[float, float, str, str], offset: tuple, fontsize:
 def place_labels(ax, points: list[tuple[float, float, str, str]], fontsize: float) -> list:
     """Label each (x, y, text, colour) at the first of ``_LABEL_OFFSETS`` whose text box stays inside the axes and
     overlaps no marker and no label placed before it (points taken left to right; the first offset when none is
-    free). Call
-    once the axes' limits and layout are final: the boxes are measured in display pixels. -> the annotations."""
+    free). Call once the axes' limits and layout are final: the boxes are measured in display pixels. -> the
+    annotations."""
     from matplotlib.transforms import Bbox
 
     ax.autoscale_view()

@@ -8,9 +8,17 @@ the edge into a hole. ``disocclusion_fill`` extends the background behind the fo
 methods do (Shade et al. 1998; Shih et al., 3D Photo Inpainting, 2020): each foreground pixel within
 ``fill_deg`` of an edge gets a second point on its ray at the background's distance, coloured like the
 background. From the centre these points lie behind the foreground, which hides them once it is opaque; from
-elsewhere they fill the hole with the background's continuation instead of nothing. (While every Gaussian is
-still see-through, at 3DGS's initial opacity of 0.1, the centre sees some of them and training thins them out:
-starting at 0.5 keeps more of them and gains indoors, but costs outdoors; docs/benchmarks.md.)
+elsewhere they fill the hole with the background's continuation instead of nothing. While every Gaussian is
+still see-through (3DGS's initial opacity 0.1) the centre sees some of them and training thins them out, so a
+long enough run adds them only once the surface is opaque (``trainer.fill_join_step``; docs/benchmarks.md).
+
+Sky. Sources drop sky pixels (no finite distance), so without help the trainer covers the sky with Gaussians
+at arbitrary depths that look wrong from anywhere but the centre. A sky is infinitely far: its colour depends
+on the ray direction only. ``sky_environment`` keeps the panorama's sky pixels as an ERP environment map (other
+pixels take the colour of the nearest sky pixel, so sky that parallax reveals next to the horizon is sky
+coloured); the trainer composites ``image + (1 - alpha) x background(ray)`` for every view. It is fixed (not
+learned), so it cannot take over the geometry that the pseudo-labels, all seen from the centre, would let a
+learned map explain; it costs no Gaussians and adds nothing to the depth term (alpha is unchanged).
 """
 
 from __future__ import annotations

@@ -305,11 +305,12 @@ def train(
         v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
     fill, fill_points = None, 0  # the fill's points: joined to the cloud now, or to the model at fill_step
+    fill_step = fill_join_step(cfg)
     if cfg.disocclusion_fill_deg:
         fill = disocclusion_fill(point_cloud, *scene.rgb.shape[:2], cfg.disocclusion_fill_deg)
         fill_points = len(fill)
         log.info("disocclusion fill: %d points behind depth edges", fill_points)
-        if not fill_join_step(cfg) or not fill_points:
+        if not fill_step or not fill_points:
             point_cloud, fill = (
                 PointCloud(np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])),
                 None,
@@ -321,7 +322,7 @@ def train(
             fill_points = len(fill)
         point_cloud = thin_cloud(point_cloud, n_points, cfg.seed)
     model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
-    fill_step = fill_join_step(cfg) if fill is not None else -1
+    fill_step = fill_step if fill is not None else -1
     late_fill = (
         None if fill is None else GaussianModel.from_point_cloud(fill, cfg.sh_degree, cfg.disocclusion_opacity).to(dev)
     )
