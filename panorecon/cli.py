@@ -37,6 +37,33 @@ def cmd_scenes_list(args) -> int:
     return 0
 
 
+def cmd_scenes_check(args) -> int:
+    import dataclasses
+
+    from .io import write_json
+    from .scenes.check import AGREE_MIN, AGREE_REL_TOL, PLANE_MIN, PLANE_TOL_M, check_root, report_table
+    from .scenes.datasets import list_root
+
+    if not Path(args.root).is_dir():
+        raise PanoreconInputError(f"{args.root}: not a folder; expected a dataset folder")
+    if not list_root(Path(args.root)):
+        raise PanoreconInputError(f"{args.root}: no Stanford2D3D, Structured3D or Matterport3D panorama under it")
+    results = check_root(Path(args.root), args.width)
+    print(report_table(results))
+    flagged = [r.name for r in results if r.flags]
+    print(
+        f"{len(results)} panoramas, {len(flagged)} flagged (agreement: true distances within "
+        f"{AGREE_REL_TOL:.0%} where two panoramas see the same surface, flagged below {AGREE_MIN}; walls: "
+        f"wall-band pixels within {PLANE_TOL_M * 100:.0f} cm of an annotated plane, flagged below {PLANE_MIN})"
+    )
+    if args.json:
+        write_json(
+            args.json,
+            {"root": str(args.root), "width": args.width, "panoramas": [dataclasses.asdict(r) for r in results]},
+        )
+    return 1 if flagged else 0
+
+
 def cmd_render(args) -> int:
     import dataclasses
 
@@ -384,6 +411,15 @@ def build_parser() -> argparse.ArgumentParser:
         "Matterport3D) found under this folder, as scene names",
     )
     sc.set_defaults(fn=cmd_scenes_list)
+    ck = scenes.add_parser(
+        "check",
+        help="every posed dataset panorama under ROOT: does its true depth agree with the other panoramas of its "
+        "space and with the dataset's annotated planes? (exit 1 when one is flagged)",
+    )
+    ck.add_argument("root", help="a dataset folder (as for `scenes list --root`)")
+    ck.add_argument("--width", type=T.int_in(64, 8192, "width", even=True), default=512, help="ERP width to check at")
+    ck.add_argument("--json", type=T.out_file, default=None, help="also write the results as JSON to this file")
+    ck.set_defaults(fn=cmd_scenes_check)
 
     r = sub.add_parser("render", help="write pano.png, distance.npy (float32 metres, inf = sky) and mask.png")
     r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")

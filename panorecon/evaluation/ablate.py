@@ -249,6 +249,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
                 rec[f"lpips_{tag}_note"] = block["lpips"]
             if not block:
                 rec[f"psnr_{tag}_note"] = m.get(proto)
+            elif isinstance(block.get("psnr"), str):  # e.g. held-out panoramas with too few co-visible pixels
+                rec[f"psnr_{tag}_note"] = block["psnr"]
         rec.update(
             device=m.get("device", "cpu"),
             device_name=m.get("device_name", "unrecorded"),

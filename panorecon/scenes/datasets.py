@@ -1,19 +1,23 @@
 """Panoramic-depth datasets as scene names: ``<dataset>:<root>/<...>`` -> a real ``Scene`` with true depth.
 
-Each adapter knows its dataset's on-disk layout and depth encoding from the dataset's own documentation
-(cited beside it). No dataset file ships with panorecon; see the README for where each comes from and its licence.
+Each adapter knows its dataset's on-disk layout, depth encoding, pixel<->direction convention and pose from the
+dataset's own code and documentation (cited beside it). No dataset file ships with panorecon; see the README for
+where each comes from and its licence.
 
-- ``stanford2d3d:<root>/<area>/<pano id>``: ``<area>/pano/{rgb,depth,pose}/<pano id>_frame_equirectangular_domain_``
-  ``{rgb.png,depth.png,pose.json}``; depth 16-bit PNG, 1/512 m, ray distance, 65535 missing; pose
-  ``camera_location`` (m).
+- ``stanford2d3d:<root>/<area>/<pano id>``: ``<area>/pano/{rgb,depth,pose,global_xyz}/<pano id>``
+  ``_frame_equirectangular_domain_{rgb.png,depth.png,pose.json,global_xyz.exr}``; depth 16-bit PNG, 1/512 m,
+  ray distance, 65535 missing; position ``camera_location`` (m); orientation per panorama from its
+  ``global_xyz`` image (the dataset's own world position of every pixel), else unknown.
 - ``structured3d:<root>/<scene>/<room>``: ``<scene>/2D_rendering/<room>/panorama/{full/rgb_rawlight.png,
-  full/depth.png, camera_xyz.txt}``; depth 16-bit PNG, mm, ray distance; pose ``camera_xyz.txt`` (mm).
+  full/depth.png, camera_xyz.txt}``; depth 16-bit PNG, mm, ray distance; position ``camera_xyz.txt`` (mm);
+  orientation fixed by the dataset (centre column along +y, +x to its right, +z up).
 - ``matterport3d:<root>/<scene>/<pano>``: ``<scene>/pano_color/<pano>.jpg``, ``<scene>/pano_depth/<pano>.png``;
   depth 16-bit PNG, 1/4000 m, ray distance; no pose.
 
-Positions are metres in the dataset's world frame. The panoramas of one space are taken to share the world's
-orientation (only their centres differ): Structured3D renders its panoramas so; for Stanford2D3D it is an
-assumption this adapter does not check (the pose JSON's ``camera_rt_matrix`` is not read).
+A panorama's pose is its centre (metres, the dataset's world frame) and ``rotation`` [3, 3]: the dataset-world
+direction of a panorecon sphere direction (``geometry/sphere.py``: centre column along +x, +y to its left,
++z up), i.e. world point = position + rotation @ (distance * d(lon, lat)). Held-out views and
+``panorecon scenes check`` use a panorama only when both are known.
 """
 
 from __future__ import annotations
@@ -31,13 +35,17 @@ from .real import DepthSpec, scene_from_image
 
 @dataclass(frozen=True)
 class Panorama:
-    """One dataset panorama: ``name`` (``<dataset>:<key>``, without the root), its image, its depth file,
-    and its centre [3] float64 metres in the dataset's world frame (None where the layout has no pose)."""
+    """One dataset panorama: ``name`` (``<dataset>:<key>``, without the root), its image, its depth file, its
+    centre [3] float64 metres in the dataset's world frame and ``rotation`` [3, 3] float64 (world direction of a
+    panorecon sphere direction, see the module doc), each None where the dataset gives none; ``orientation``:
+    where the rotation comes from, or why there is none."""
 
     name: str
     rgb: Path
     depth: DepthSpec
     position: np.ndarray | None
+    rotation: np.ndarray | None = None
+    orientation: str = "none: the dataset gives no pose"
 
 
 @dataclass(frozen=True)
@@ -60,12 +68,36 @@ def _need(path: Path, what: str) -> Path:
     return path
 
 
+def _panorecon_directions(height: int, width: int) -> np.ndarray:
+    from ..geometry import erp_directions
+
+    return erp_directions(height, width)
+
+
+def fit_rotation(local: np.ndarray, world: np.ndarray) -> tuple[np.ndarray, float]:
+    """The proper rotation R [3, 3] minimising sum |R @ local_k - world_k|^2 (Kabsch; local, world [N, 3]
+    float64 metres) and the median residual (metres) of the fit."""
+    u, _, vt = np.linalg.svd(world.T @ local)
+    d = np.sign(np.linalg.det(u @ vt))
+    r = u @ np.diag([1.0, 1.0, d]) @ vt
+    return r, float(np.median(np.linalg.norm(local @ r.T - world, axis=1)))
+
+
 # ---------------------------------------------------------------- Stanford2D3D (2D-3D-S)
 # github.com/alexsax/2D-3D-Semantics README: "Depth images are stored as 16-bit PNGs and have a maximum depth
 # of 128m and a sensitivity of 1/512m. Missing values are encoded with the value 2^16 - 1 ... [depth] is defined
 # as the distance from the point-center of the camera in the panoramics." Pose JSON: "camera_location": XYZ
 # location of the camera; pano files: area_N/pano/<modality>/camera_<uuid>_<room>_<i>_frame_equirectangular_domain_*.
+# Orientation: every panorama has its own (the pose JSON's camera_rt_matrix / final_camera_rotation differ per
+# panorama), but neither the README nor the tools (assets/pcl_utils.h reads the XYZ-Euler angles only, for the
+# perspective frames) say how an equirectangular pixel maps to that camera frame. The dataset does ship the
+# mapping itself: "Global XYZ images contain the ground-truth location of each pixel in the mesh" (16-bit 3-channel
+# OpenEXR, missing = 0, pano/global_xyz/<id>_global_xyz.exr). The adapter fits each panorama's rotation to it
+# (world XYZ - camera_location against distance x panorecon direction, every 8th pixel); without that file the
+# orientation is unknown and the panorama serves neither held-out views nor `scenes check`.
 _S2D3D_SUFFIX = "_frame_equirectangular_domain_"
+_S2D3D_FIT_STEP = 8
+_S2D3D_FIT_MAX_RESIDUAL = 0.05  # metres: a worse fit means the global_xyz does not belong to this depth
 
 
 def _s2d3d_file(root: Path, key: str, modality: str, ext: str) -> Path:
@@ -73,9 +105,52 @@ def _s2d3d_file(root: Path, key: str, modality: str, ext: str) -> Path:
     return root / area / "pano" / modality / f"{pano}{_S2D3D_SUFFIX}{modality}.{ext}"
 
 
+def _s2d3d_rotation(xyz_path: Path, depth: DepthSpec, position: np.ndarray) -> tuple[np.ndarray | None, str]:
+    from ..io.depth import read_erp_depth
+
+    xyz = _read_exr_rgb(xyz_path)
+    dist = read_erp_depth(depth.path, depth.scale, depth.kind).astype(np.float64)
+    if xyz.shape[:2] != dist.shape:
+        raise PanoreconInputError(f"{xyz_path}: global XYZ is {xyz.shape[1]}x{xyz.shape[0]}, depth {dist.shape[::-1]}")
+    s = (slice(None, None, _S2D3D_FIT_STEP), slice(None, None, _S2D3D_FIT_STEP))
+    dirs = _panorecon_directions(*dist.shape)[s]
+    xyz, dist = xyz[s], dist[s]
+    ok = np.isfinite(dist) & np.isfinite(xyz).all(-1) & (np.abs(xyz).sum(-1) > 0)
+    if ok.sum() < 100:
+        return None, f"none: {xyz_path.name} has {int(ok.sum())} valid pixels where the depth is valid"
+    r, res = fit_rotation(dist[ok][:, None] * dirs[ok], xyz[ok] - position)
+    if res > _S2D3D_FIT_MAX_RESIDUAL:
+        raise PanoreconInputError(
+            f"{xyz_path}: the global XYZ image does not fit this panorama's depth and camera_location "
+            f"(median residual {res:.3f} m after the best rotation; expected <= {_S2D3D_FIT_MAX_RESIDUAL} m)"
+        )
+    return r, f"2D-3D-S global_xyz fit (median residual {res * 1000:.1f} mm)"
+
+
+def _read_exr_rgb(path: Path) -> np.ndarray:
+    """A 3-channel EXR -> [H, W, 3] float64 (channels R, G, B; or one RGB layer of pixel triples)."""
+    try:
+        import OpenEXR
+    except ImportError:
+        raise PanoreconInputError(
+            f"{path}: reading EXR needs the OpenEXR package: pip install 'panorecon[exr]'"
+        ) from None
+    try:
+        with OpenEXR.File(str(path)) as f:
+            ch = {n: np.asarray(c.pixels, np.float64) for n, c in f.channels().items()}
+    except Exception as e:  # OpenEXR raises bare exceptions for truncated or foreign files
+        raise PanoreconInputError(f"{path}: not a readable EXR file ({e})") from None
+    if all(c in ch for c in "RGB"):
+        return np.stack([ch["R"], ch["G"], ch["B"]], -1)
+    one = next((v for v in ch.values() if v.ndim == 3 and v.shape[2] >= 3), None)
+    if one is None:
+        raise PanoreconInputError(f"{path}: expected an RGB (X, Y, Z) EXR, found channels {sorted(ch)}")
+    return one[..., :3]
+
+
 def _s2d3d_locate(root: Path, key: str) -> Panorama:
     rgb = _need(_s2d3d_file(root, key, "rgb", "png"), "Stanford2D3D panorama image")
-    depth = _need(_s2d3d_file(root, key, "depth", "png"), "Stanford2D3D panorama depth")
+    depth_path = _need(_s2d3d_file(root, key, "depth", "png"), "Stanford2D3D panorama depth")
     pose_path = _need(_s2d3d_file(root, key, "pose", "json"), "Stanford2D3D panorama pose")
     try:
         position = np.asarray(json.loads(pose_path.read_text())["camera_location"], np.float64)
@@ -83,9 +158,19 @@ def _s2d3d_locate(root: Path, key: str) -> Panorama:
         raise PanoreconInputError(f"{pose_path}: not a 2D-3D-S pose file with a camera_location ({e})") from None
     if position.shape != (3,) or not np.isfinite(position).all():
         raise PanoreconInputError(f"{pose_path}: camera_location {position.tolist()} is not three finite numbers")
-    return Panorama(
-        f"stanford2d3d:{key}", rgb, DepthSpec(depth, 1 / 512, "distance", source="2D-3D-S, 1/512 m"), position
-    )
+    depth = DepthSpec(depth_path, 1 / 512, "distance", source="2D-3D-S, 1/512 m")
+    xyz_path = _s2d3d_file(root, key, "global_xyz", "exr")
+    if xyz_path.is_file():
+        rotation, orientation = _s2d3d_rotation(xyz_path, depth, position)
+    else:
+        rotation, orientation = None, f"none: no {xyz_path.name} (the per-pixel world positions it is fitted to)"
+    return Panorama(f"stanford2d3d:{key}", rgb, depth, position, rotation, orientation)
+
+
+def _s2d3d_group(key: str) -> str:
+    """``<area>/<room>``: pano ids are camera_<uuid>_<room type>_<room number>_<i> (README, "room")."""
+    area, pano = key.split("/")
+    return f"{area}/{'_'.join(pano.split('_')[2:-1])}"
 
 
 def _s2d3d_keys(root: Path) -> list[str]:
@@ -94,9 +179,19 @@ def _s2d3d_keys(root: Path) -> list[str]:
 
 
 # ---------------------------------------------------------------- Structured3D
-# github.com/bertjiazheng/Structured3D data_organization.md: <scene>/2D_rendering/<room>/panorama/
-# {empty,simple,full}/{rgb_rawlight.png, depth.png}, panorama/camera_xyz.txt "camera global location"; depth and
-# locations in millimetres (the dataset's unit), the panorama depth being the distance from the camera centre.
+# github.com/bertjiazheng/Structured3D (commit a1aa97f) data_organization.md: <scene>/2D_rendering/<room>/panorama/
+# {empty,simple,full}/{rgb_rawlight.png, depth.png}, panorama/camera_xyz.txt "the camera location in millimeters
+# in global coordinates. The direction of the camera is always along the negative y-axis. The z-axis is upward";
+# depth.png "16-bit ... millimeters ... A zero value denotes no reading", the distance from the camera centre.
+# Pixel <-> direction: misc/panorama.py, coords2uv + uv2xyzN (planeID 1): u = (col - W/2) / W * 2 pi (pixel
+# centres), v = -(row - H/2) / H * pi, direction = (cos v sin u, cos v cos u, sin v); xyz_2_coorxy is its inverse
+# (u = atan2(x, y)). So the centre column looks along +y, +x is to its right, and the image's first column (u = -pi)
+# along -y (the README's "direction of the camera"). panorecon's centre column looks along +x with +y to its left:
+# world = Rz(+90 deg) @ panorecon direction. annotation_3d.json planes: normal . x + offset = 0 (mm; visualize_3d.py,
+# project_inv), the normal towards the empty space.
+_S3D_WORLD_FROM_PANO = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
 def _s3d_locate(root: Path, key: str) -> Panorama:
     scene, room = key.split("/")
     pano = root / scene / "2D_rendering" / room / "panorama"
@@ -109,7 +204,14 @@ def _s3d_locate(root: Path, key: str) -> Panorama:
         raise PanoreconInputError(f"{xyz}: expected three numbers (millimetres), {e}") from None
     if position.shape != (3,) or not np.isfinite(position).all():
         raise PanoreconInputError(f"{xyz}: expected three finite numbers (millimetres)")
-    return Panorama(f"structured3d:{key}", rgb, DepthSpec(depth, 1e-3, "distance", source="Structured3D, mm"), position)
+    return Panorama(
+        f"structured3d:{key}",
+        rgb,
+        DepthSpec(depth, 1e-3, "distance", source="Structured3D, mm"),
+        position,
+        _S3D_WORLD_FROM_PANO,
+        "Structured3D misc/panorama.py uv2xyzN: centre column along +y, +x to its right",
+    )
 
 
 def _s3d_keys(root: Path) -> list[str]:
@@ -118,10 +220,28 @@ def _s3d_keys(root: Path) -> list[str]:
     )
 
 
+def structured3d_planes(root: Path, scene: str, kind: str = "wall") -> np.ndarray | None:
+    """The ``kind`` planes of a Structured3D scene's ``annotation_3d.json`` as [P, 4] float64 (unit normal, offset
+    in metres: normal . x + offset = 0), or None without the file."""
+    path = Path(root) / scene / "annotation_3d.json"
+    if not path.is_file():
+        return None
+    try:
+        planes = [p for p in json.loads(path.read_text())["planes"] if p["type"] == kind]
+        arr = np.array([[*p["normal"], p["offset"] / 1000.0] for p in planes], np.float64).reshape(-1, 4)
+    except (ValueError, KeyError, TypeError) as e:
+        raise PanoreconInputError(f"{path}: not a Structured3D annotation_3d.json with planes ({e})") from None
+    norm = np.linalg.norm(arr[:, :3], axis=1, keepdims=True)
+    if not (np.isfinite(arr).all() and (norm > 0).all()):
+        raise PanoreconInputError(f"{path}: a plane has a zero or non-finite normal")
+    return arr / norm
+
+
 # ---------------------------------------------------------------- Matterport3D (360° panoramas)
 # The 360° Matterport3D that the panoramic-depth papers use (BiFuse, UniFuse: github.com/alibaba/
 # UniFuse-Unidirectional-Fusion, Matterport3D/stitch.m): the skybox views stitched per scan into
-# <scene>/pano_color/<pano>.jpg and <scene>/pano_depth/<pano>.png = uint16(ray distance * 4000); no pose file.
+# <scene>/pano_color/<pano>.jpg and <scene>/pano_depth/<pano>.png = uint16(ray distance * 4000); no pose file
+# in that layout, so neither position nor orientation.
 def _mp3d_locate(root: Path, key: str) -> Panorama:
     scene, pano = key.split("/")
     rgb = next((p for p in (root / scene / "pano_color" / f"{pano}{e}" for e in (".jpg", ".png")) if p.is_file()), None)
@@ -148,7 +268,7 @@ DATASETS = {
             2,
             _s2d3d_locate,
             _s2d3d_keys,
-            lambda key: key.split("/")[0],
+            _s2d3d_group,
         ),
         Dataset(
             "structured3d",
@@ -193,19 +313,29 @@ def locate(name: str) -> Panorama:
 
 def load_dataset_scene(name: str, width: int | None = None):
     """A dataset panorama as a real scene with true depth. ``meta``: dataset, key, position (metres or None),
-    and ``others``: the scene names of the other panoramas of its space that have a pose."""
+    rotation ([3, 3] list or None, see the module doc), orientation (its source), and ``others``: the scene names
+    of the other panoramas of its space (only when this one has a full pose; ``heldout_panoramas`` keeps those
+    that have one too), else ``heldout_note``: why none."""
     ds, root, key = split_name(name)
     pano = locate(name)
-    others = []
-    if pano.position is not None:
+    others, note = [], None
+    if pano.position is None or pano.rotation is None:
+        note = f"n/a: {pano.name} has no full pose (orientation {pano.orientation})"
+    else:
         group = ds.group(key)
         others = [f"{ds.prefix}:{root / k}" for k in ds.keys(root) if k != key and ds.group(k) == group]
+        if not others:
+            note = f"n/a: no other panorama in {pano.name}'s space ({ds.prefix} group {group})"
     meta = {
         "dataset": ds.prefix,
         "key": key,
         "position": None if pano.position is None else pano.position.tolist(),
+        "rotation": None if pano.rotation is None else pano.rotation.tolist(),
+        "orientation": pano.orientation,
         "others": others,
     }
+    if note:
+        meta["heldout_note"] = note
     return scene_from_image(
         pano.rgb,
         width,
@@ -224,14 +354,21 @@ def list_root(root: Path) -> list[tuple[str, str]]:
     return [(f"{ds.prefix}:{root / k}", ds.description) for ds in DATASETS.values() for k in ds.keys(root)]
 
 
-def heldout_panoramas(scene) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The other posed panoramas of a dataset scene's space at the scene's size: [(offset [3] metres from the
-    scene's centre, rgb [H, W, 3] uint8, ray distance [H, W] float32 metres, NaN unknown)]; [] for other scenes."""
-    if scene.meta.get("position") is None or not scene.meta.get("others"):
+def heldout_panoramas(scene) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The other fully posed panoramas of a dataset scene's space at the scene's size, in the scene's own frame
+    (panorecon's sphere frame at its centre): [(offset [3] metres of that panorama's centre, rotation [3, 3]
+    float64 taking a direction in the scene's frame to that panorama's frame, rgb [H, W, 3] uint8, ray distance
+    [H, W] float32 metres, NaN unknown)]; [] for other scenes."""
+    if scene.meta.get("rotation") is None or not scene.meta.get("others"):
         return []
     here = np.asarray(scene.meta["position"], np.float64)
+    rot = np.asarray(scene.meta["rotation"], np.float64)
     out = []
     for name in scene.meta["others"]:
         other = load_dataset_scene(name, scene.width)
-        out.append((np.asarray(other.meta["position"]) - here, other.rgb, other.distance))
+        if other.meta["rotation"] is None:
+            continue
+        r_other = np.asarray(other.meta["rotation"], np.float64)
+        offset = rot.T @ (np.asarray(other.meta["position"]) - here)
+        out.append((offset, r_other.T @ rot, other.rgb, other.distance))
     return out

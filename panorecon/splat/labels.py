@@ -101,6 +101,10 @@ def in_cloud_frame(view: LabelView, scale: float) -> LabelView:
 
 
 COVISIBLE_REL_TOL = 0.05
+# A held-out view of another panorama is scored on its co-visible pixels only when it has at least this many
+# (a PSNR over fewer is noise: the relative error of a mean squared error over n pixels is about sqrt(2 / n),
+# 0.09 = 0.4 dB at 256); with no such view the held-out score reads n/a (``covisible_shortfall``).
+MIN_COVISIBLE_PIXELS = 256
 
 
 def make_panorama_heldout_views(
@@ -108,10 +112,11 @@ def make_panorama_heldout_views(
 ) -> list[LabelView]:
     """Held-out views on a real scene from its other panoramas (true images taken elsewhere in the same space).
 
-    ``panoramas``: [(offset [3] metres of that panorama's centre from the scene's, rgb [H, W, 3] uint8, ray
-    distance [H, W] float32 metres, NaN unknown)], all in the scene's orientation. View i stands at panorama
-    i mod K looking in a random direction within 30 degrees of the horizon; its rgb and z-depth are sampled
-    from that panorama. Its mask keeps the pixels the training panorama sees too: the pixel's true 3D point
+    ``panoramas``: [(offset [3] metres of that panorama's centre in the scene's frame, rotation [3, 3] taking a
+    scene-frame direction to that panorama's own frame, rgb [H, W, 3] uint8, ray distance [H, W] float32 metres,
+    NaN unknown)] (``scenes.datasets.heldout_panoramas``). View i stands at panorama i mod K looking in a random
+    direction within 30 degrees of the horizon (scene frame); its rgb and z-depth are sampled from that panorama
+    along the rotated rays. Its mask keeps the pixels the training panorama sees too: the pixel's true 3D point
     X (from the held-out panorama's depth) must be valid there and lie, seen from the scene's centre, within
     5 % of the scene's own true distance along X's direction (otherwise it is occluded from, or unknown to,
     the panorama the Gaussians were trained on). The scene needs a true distance."""
@@ -121,18 +126,33 @@ def make_panorama_heldout_views(
     K = intrinsics_from_fov(size, size, fov_deg)
     views = []
     for i in range(n_views):
-        offset, rgb, dist = panoramas[i % len(panoramas)]
+        offset, rotation, rgb, dist = panoramas[i % len(panoramas)]
         az, el = rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi / 6, np.pi / 6)
         forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         cam = PinholeCamera(K, viewmat_from_pose(look_at_rotation(forward), np.asarray(offset, float)), size, size)
         rays = cam.world_rays()
-        d = sample_erp(dist.astype(np.float32), rays, "nearest").astype(np.float64)
+        local = rays @ np.asarray(rotation, np.float64).T  # the same rays in that panorama's frame
+        d = sample_erp(dist.astype(np.float32), local, "nearest").astype(np.float64)
         x = np.asarray(offset, float) + rays * d[..., None]
         r = np.linalg.norm(x, axis=-1)
         with np.errstate(invalid="ignore", divide="ignore"):
             seen = sample_erp(scene.distance.astype(np.float32), x / r[..., None], "nearest").astype(np.float64)
             mask = np.isfinite(d) & np.isfinite(seen) & (np.abs(seen - r) <= COVISIBLE_REL_TOL * r)
-        img = sample_erp(rgb, rays, "linear").astype(np.float32) / 255.0
+        img = sample_erp(rgb, local, "linear").astype(np.float32) / 255.0
         z = np.where(mask, d / cam.z_to_distance_factor(), np.nan).astype(np.float32)
         views.append(LabelView(cam, img, z, mask))
     return views
+
+
+def covisible_shortfall(views: Sequence[LabelView]) -> str | None:
+    """For masked held-out views (other panoramas): 'n/a: <reason>' when no view has MIN_COVISIBLE_PIXELS
+    co-visible pixels (nothing to score on), else None. Unmasked views (true renders) always score."""
+    if not views or all(v.mask is None for v in views):
+        return None
+    counts = [int(v.mask.sum()) for v in views if v.mask is not None]
+    if max(counts) >= MIN_COVISIBLE_PIXELS:
+        return None
+    return (
+        f"n/a: no held-out view has {MIN_COVISIBLE_PIXELS} co-visible pixels (most: {max(counts)} of "
+        f"{views[0].mask.size}; the other panoramas see little of what the training panorama sees)"
+    )

@@ -26,7 +26,15 @@ from .initial import (
     thin_cloud,
     view_background,
 )
-from .labels import LabelView, in_cloud_frame, make_heldout_views, make_panorama_heldout_views, make_pseudo_labels
+from .labels import (
+    MIN_COVISIBLE_PIXELS,
+    LabelView,
+    covisible_shortfall,
+    in_cloud_frame,
+    make_heldout_views,
+    make_panorama_heldout_views,
+    make_pseudo_labels,
+)
 from .losses import ssim, total_loss
 from .model import GaussianModel
 from .ply import save_ply
@@ -155,20 +163,23 @@ def _render(
 
 
 def _heldout_psnr(model, views, cfg, backend) -> float:
-    """Mean PSNR (dB) of the held-out views, the cheap history sample (no SSIM, no LPIPS)."""
-    dev = model.means.device
+    """Mean PSNR (dB) of the held-out views, the cheap history sample (no SSIM, no LPIPS); masked views (other
+    panoramas) over their co-visible pixels, those with fewer than MIN_COVISIBLE_PIXELS left out, as in
+    ``_evaluate_masked``. Call it only when ``covisible_shortfall(views)`` is None."""
     with torch.no_grad():
-        return float(
-            np.mean(
-                [
-                    psnr(
-                        _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1),
-                        torch.from_numpy(v.rgb).to(dev),
-                    )
-                    for v in views
-                ]
-            )
-        )
+        return float(np.mean([p for p in (_view_psnr(model, v, cfg, backend) for v in views) if p is not None]))
+
+
+def _view_psnr(model, v, cfg, backend) -> float | None:
+    """PSNR (dB) of one view over its mask (all pixels without one); None below MIN_COVISIBLE_PIXELS."""
+    if v.mask is not None and int(v.mask.sum()) < MIN_COVISIBLE_PIXELS:
+        return None
+    img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
+    t = torch.from_numpy(v.rgb).to(img.device)
+    if v.mask is None:
+        return psnr(img, t)
+    m = torch.from_numpy(v.mask).to(img.device)
+    return psnr(img[m], t[m])
 
 
 def _evaluate(model, views, cfg, backend) -> dict:
@@ -195,36 +206,36 @@ def _evaluate(model, views, cfg, backend) -> dict:
 
 
 def _evaluate_masked(model, views, cfg, backend) -> dict:
-    """PSNR over each view's masked pixels (the co-visible ones of a real held-out panorama), averaged over
-    views; SSIM and LPIPS need whole windows, so they read n/a."""
+    """PSNR over each view's masked pixels (the co-visible ones of a real held-out panorama), averaged over the
+    views with at least MIN_COVISIBLE_PIXELS of them ('n/a: <reason>' with none); SSIM and LPIPS need whole
+    windows, so they read n/a."""
     ps, pixels = [], 0
     with torch.no_grad():
         for v in views:
-            m = torch.from_numpy(v.mask)
-            if not bool(m.any()):
-                continue
-            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).cpu()
-            ps.append(psnr(img[m], torch.from_numpy(v.rgb)[m]))
-            pixels += int(m.sum())
+            p = _view_psnr(model, v, cfg, backend)
+            if p is not None:
+                ps.append(p)
+                pixels += int(v.mask.sum())
     reason = "n/a: held-out real panoramas are scored on their co-visible pixels only (PSNR)"
     return {
-        "psnr": float(np.mean(ps)) if ps else "n/a: no co-visible pixel",
+        "psnr": float(np.mean(ps)) if ps else covisible_shortfall(views),
         "ssim": reason,
         "lpips": reason,
         "views": len(ps),
         "pixels": pixels,
+        "min_pixels_per_view": MIN_COVISIBLE_PIXELS,
         "protocol": "other panoramas of the space, pixels the training "
         "panorama also sees (true distances agree within 5 %)",
-        "covisible_fraction": pixels / float(sum(v.mask.size for v in views)),
+        "covisible_fraction": sum(int(v.mask.sum()) for v in views) / float(sum(v.mask.size for v in views)),
     }
 
 
-def best_heldout(history: list[dict]) -> dict | str:
+def best_heldout(history: list[dict], reason: str | None = None) -> dict | str:
     """The history sample with the highest held-out PSNR: its iteration, training seconds, Gaussians and PSNR
-    (what a run's quality-against-time reads as), or 'n/a: <reason>' when no sample has one."""
+    (what a run's quality-against-time reads as), or 'n/a: <reason>' (``reason`` if given) when none has one."""
     samples = [h for h in history if "heldout_psnr" in h]
     if not samples:
-        return "n/a: no held-out PSNR in the history (no held-out views, or history_every = 0)"
+        return reason or "n/a: no held-out PSNR in the history (no held-out views, or history_every = 0)"
     b = max(samples, key=lambda h: h["heldout_psnr"])
     return {k: b[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr") if k in b}
 
@@ -294,12 +305,12 @@ def train(
     elif cfg.heldout and scene.has_ground_truth and scene.meta.get("others"):  # a dataset space's other panoramas
         from ..scenes.datasets import heldout_panoramas
 
-        heldout = make_panorama_heldout_views(
-            scene, heldout_panoramas(scene), cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed
-        )
+        pans = heldout_panoramas(scene)
+        heldout = make_panorama_heldout_views(scene, pans, cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed) if pans else []
     if not (np.isfinite(heldout_scale) and heldout_scale > 0):
         raise ValueError(f"heldout_scale={heldout_scale!r}: expected a finite scale > 0 (truth / cloud)")
     heldout = [in_cloud_frame(v, heldout_scale) for v in heldout]
+    heldout_na = covisible_shortfall(heldout)  # other panoramas that see too little: no held-out number at all
     env = sky_environment(scene) if cfg.sky == "panorama" else None
     for v in (*labels, *heldout):
         v.background = view_background(env, v.camera)
@@ -427,7 +438,7 @@ def train(
                     "gaussians": len(model),
                 }
             )
-            if heldout:
+            if heldout and heldout_na is None:
                 history[-1]["heldout_psnr"] = _heldout_psnr(model, heldout, cfg, backend)
             history_s += time.perf_counter() - te
             bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
@@ -453,7 +464,9 @@ def train(
     t = time.perf_counter()
     metrics = {
         "pseudo-label": _evaluate(model, labels, cfg, backend),
-        "held-out": _evaluate(model, heldout, cfg, backend) if heldout else "n/a: scene has no ground-truth world",
+        "held-out": _evaluate(model, heldout, cfg, backend)
+        if heldout
+        else scene.meta.get("heldout_note", "n/a: scene has no ground-truth world"),
     }
     seconds["eval"] = time.perf_counter() - t
     save_ply(model, out / "point_cloud.ply")
@@ -495,7 +508,7 @@ def train(
         peak_rss_mb=peak_rss_mb(),
         **device_record(dev),
         history=history,
-        heldout_best=best_heldout(history),
+        heldout_best=best_heldout(history, heldout_na),
         heldout_scale=heldout_scale,
         config=dataclasses.asdict(cfg),
     )

@@ -14,32 +14,49 @@ from panorecon.splat.labels import make_panorama_heldout_views
 OFFSET = np.array([0.5, 0.3, 0.0])
 
 
+ROLL = 77  # columns: the held-out panorama is turned against the training one (its own orientation)
+
+
 @pytest.fixture(scope="module")
 def space(tmp_path_factory):
     """bedroom's panoramas at the origin and at OFFSET, written as two Stanford2D3D panoramas (world frame
-    shifted by ORIGIN), and the dataset scene of the first."""
+    shifted by ORIGIN; the second one's image turned by ROLL columns, its global_xyz saying so), and the dataset
+    scene of the first."""
+    from panorecon.geometry import erp_directions
+
+    from ..scenes.conftest import write_exr_xyz
+
     root, origin = tmp_path_factory.mktemp("s2d3d"), np.array([4.0, -2.0, 1.0])
     world = load_scene("bedroom", 256).world
     for i, off in enumerate((np.zeros(3), OFFSET)):
         r = world.render_erp(128, off)
+        xyz = origin + off + r.distance[..., None] * erp_directions(128, 256)
+        roll = ROLL * i
         base, pano = root / "area_1" / "pano", f"camera_{i:032x}_room_1_{i}_frame_equirectangular_domain"
-        write_image(base / "rgb" / f"{pano}_rgb.png", r.rgb)
+        write_image(base / "rgb" / f"{pano}_rgb.png", np.roll(r.rgb, roll, 1))
         (base / "depth").mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(base / "depth" / f"{pano}_depth.png"), np.round(r.distance * 512).astype(np.uint16))
+        cv2.imwrite(
+            str(base / "depth" / f"{pano}_depth.png"), np.roll(np.round(r.distance * 512), roll, 1).astype(np.uint16)
+        )
         (base / "pose").mkdir(parents=True, exist_ok=True)
         (base / "pose" / f"{pano}_pose.json").write_text(json.dumps({"camera_location": (origin + off).tolist()}))
+        write_exr_xyz(base / "global_xyz" / f"{pano}_global_xyz.exr", np.roll(xyz, roll, 1))
     return world, load_scene(f"stanford2d3d:{root}/area_1/camera_{0:032x}_room_1_0")
 
 
 def test_views_match_the_world_where_the_mask_says_covisible(space):
     world, scene = space
     pans = heldout_panoramas(scene)
-    assert len(pans) == 1 and np.allclose(pans[0][0], OFFSET, atol=1e-9)
+    assert len(pans) == 1 and np.allclose(pans[0][0], OFFSET, atol=2e-3)
+    turn = 2 * np.pi * ROLL / 256  # the held-out panorama's frame is turned by ROLL columns about +z
+    np.testing.assert_allclose(
+        pans[0][1], [[np.cos(turn), np.sin(turn), 0], [-np.sin(turn), np.cos(turn), 0], [0, 0, 1]], atol=2e-3
+    )
     views = make_panorama_heldout_views(scene, pans, 6, 48, 60.0, seed=1)
     fractions = []
     for v in views:
         truth = world.render_view(v.camera)
-        np.testing.assert_allclose(v.camera.position, OFFSET, atol=1e-9)
+        np.testing.assert_allclose(v.camera.position, OFFSET, atol=2e-3)
         m = v.mask
         fractions.append(m.mean())
         assert m.any() and np.isfinite(v.depth[m]).all() and np.isnan(v.depth[~m]).all()
@@ -62,3 +79,47 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     m = train(scene, scene.point_cloud(), TrainConfig(iters=10, labels=6, res=32, heldout=3), tmp_path, progress=False)
     held = m["held-out"]
     assert isinstance(held["psnr"], float) and held["ssim"].startswith("n/a") and 0 < held["covisible_fraction"] < 1
+
+
+def test_min_covisible_pixels_is_the_line():
+    from panorecon.geometry import centred_camera
+    from panorecon.splat.labels import MIN_COVISIBLE_PIXELS, LabelView, covisible_shortfall
+
+    def view(n):
+        m = np.zeros((32, 32), bool)
+        m.flat[:n] = True
+        return LabelView(centred_camera(np.array([1.0, 0, 0]), 32, 60.0), np.zeros((32, 32, 3), np.float32), None, m)
+
+    assert covisible_shortfall([view(MIN_COVISIBLE_PIXELS - 1), view(3)]).startswith(
+        f"n/a: no held-out view has {MIN_COVISIBLE_PIXELS}"
+    )
+    assert covisible_shortfall([view(MIN_COVISIBLE_PIXELS - 1), view(MIN_COVISIBLE_PIXELS)]) is None
+    assert covisible_shortfall([]) is None
+
+
+def test_no_covisible_pixel_reads_na_everywhere(tmp_path):
+    """Two Structured3D rooms that see nothing of each other: metrics.json's held-out, heldout_best, the history
+    and the results.csv row all say the same n/a, and no number computed on nothing appears anywhere."""
+    from panorecon.evaluation.ablate import result_row
+    from panorecon.pipeline import Row
+    from panorecon.splat.trainer import TrainConfig, train
+
+    from ..scenes.conftest import FAR_ROOM, write_structured3d_room
+
+    c = np.array([1.2, 1.0, 1.5])
+    write_structured3d_room(tmp_path, "scene_00000", 1, c, 64)
+    write_structured3d_room(tmp_path, "scene_00000", 2, c + [9.0, 0, 0], 64, room_box=FAR_ROOM)
+    scene = load_scene(f"structured3d:{tmp_path}/scene_00000/1")
+    assert len(heldout_panoramas(scene)) == 1
+    cfg = TrainConfig(iters=10, labels=6, res=32, heldout=3, history_every=5)
+    m = train(scene, scene.point_cloud(), cfg, tmp_path / "run", progress=False)
+    na = m["held-out"]["psnr"]
+    assert na.startswith("n/a: no held-out view has") and m["held-out"]["pixels"] == 0
+    assert m["heldout_best"] == na
+    assert len(m["history"]) == 2 and all("heldout_psnr" not in h for h in m["history"])
+    saved = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert saved["heldout_best"] == saved["held-out"]["psnr"] == na
+    row = Row(scene.name, 128, "fibonacci", "sim:relative", label="s3d")
+    pts = {"report": {"depth": {}, "points": {}, "seconds": {}}, "seconds": 1.0, "peak_rss_mb": 1.0}
+    rec = result_row(row, pts, {"metrics": m, "seconds": 1.0, "peak_rss_mb": 1.0}, {"versions": {}}, False, False)
+    assert np.isnan(rec["psnr_ho"]) and rec["psnr_ho_note"] == na and rec["history_heldout"] is None
