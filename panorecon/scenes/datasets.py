@@ -241,7 +241,10 @@ def structured3d_planes(root: Path, scene: str, kind: str = "wall") -> np.ndarra
 # The 360° Matterport3D that the panoramic-depth papers use (BiFuse, UniFuse: github.com/alibaba/
 # UniFuse-Unidirectional-Fusion, Matterport3D/stitch.m): the skybox views stitched per scan into
 # <scene>/pano_color/<pano>.jpg and <scene>/pano_depth/<pano>.png = uint16(ray distance * 4000); no pose file
-# in that layout, so neither position nor orientation.
+# in that layout, so neither position nor orientation. The dataset itself (github.com/niessner/Matterport, commit
+# 8cd7c81, data_organization.md) gives each panorama's centre in house_segmentations/<scene>.house ("P name
+# panorama_index region_index 0 px py pz") and per-image poses of the 18 raw views, but documents no orientation
+# for its skybox faces (matterport_skybox_images), so a stitched panorama's rotation is not guessed here.
 def _mp3d_locate(root: Path, key: str) -> Panorama:
     scene, pano = key.split("/")
     rgb = next((p for p in (root / scene / "pano_color" / f"{pano}{e}" for e in (".jpg", ".png")) if p.is_file()), None)
