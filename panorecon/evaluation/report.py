@@ -49,8 +49,9 @@ def with_seed(frame: pd.DataFrame) -> pd.DataFrame:
 def average_table(frame: pd.DataFrame) -> pd.DataFrame:
     """Mean over scenes (each scene's mean over its seeds) of every numeric table column, one row per label (in
     the suite's order), with ``scenes``, ``seeds`` (most seeds of a scene) and ``<column>_hw``: the half-width
-    of the mean's 95 % interval over seeds with the scenes fixed (NaN with one seed; ``stats.these_scenes``)."""
-    from .stats import run_values, these_scenes
+    of the mean's 95 % interval over seeds with the scenes fixed (NaN with one seed, and for counts;
+    ``stats.these_scenes``)."""
+    from .stats import DIRECTION, run_values, these_scenes
 
     frame = with_seed(frame)
     cols = [c for c, *_ in TABLE_COLUMNS if c in frame]
@@ -61,7 +62,8 @@ def average_table(frame: pd.DataFrame) -> pd.DataFrame:
         rec = {"scenes": g["scene"].nunique(), "seeds": int(g.groupby("scene")["seed"].nunique().max())}
         for c in cols:
             iv = these_scenes(run_values(g, c))
-            rec[c], rec[f"{c}_hw"] = iv.estimate, iv.half_width
+            # counts (points, Gaussians, panoramas) are shown without one
+            rec[c], rec[f"{c}_hw"] = iv.estimate, iv.half_width if DIRECTION.get(c, 0) else math.nan
         rows.append(rec)
     return pd.DataFrame(rows, index=pd.Index(order, name="label"))
 

@@ -74,15 +74,18 @@ class Interval:
         return (self.high - self.low) / 2
 
 
-def _by_scene(values: pd.DataFrame) -> list[np.ndarray]:
-    """[scene, value] rows (finite values only) -> one float64 array per scene, in order of appearance."""
-    ok = values[np.isfinite(values["value"].to_numpy(np.float64))]
-    return [g["value"].to_numpy(np.float64) for _, g in ok.groupby("scene", sort=False)]
+def _by_scene(values) -> list[np.ndarray]:
+    """[scene, value] rows, or a list of per-scene value arrays -> one float64 array of finite values per scene
+    (scenes in order of appearance; a scene without one is left out)."""
+    if isinstance(values, pd.DataFrame):
+        values = [g["value"] for _, g in values.groupby("scene", sort=False)]
+    groups = [np.asarray(g, np.float64) for g in values]
+    return [g[np.isfinite(g)] for g in groups if np.isfinite(g).any()]
 
 
-def these_scenes(values: pd.DataFrame, level: float = LEVEL) -> Interval:
+def these_scenes(values, level: float = LEVEL) -> Interval:
     """Mean over scenes of each scene's mean over seeds, with the stratified t interval (scenes fixed, seeds
-    random). ``values``: columns scene, value (one row per run)."""
+    random). ``values``: columns scene, value (one row per run), or one array of values per scene."""
     groups = _by_scene(values)
     if not groups:
         return Interval(math.nan, reason="no value")
@@ -99,7 +102,7 @@ def these_scenes(values: pd.DataFrame, level: float = LEVEL) -> Interval:
     return Interval(est, est - h, est + h, float(df))
 
 
-def new_scenes(values: pd.DataFrame, level: float = LEVEL) -> Interval:
+def new_scenes(values, level: float = LEVEL) -> Interval:
     """Mean of the per-scene means with a one-sample t interval over scenes (scenes random, seeds nested)."""
     groups = _by_scene(values)
     if not groups:
@@ -150,7 +153,7 @@ def _quantiles(df: float) -> float:
     return stats.t.ppf(0.5 + LEVEL / 2, df) + stats.t.ppf(POWER, df)
 
 
-def needed_seeds(diffs: pd.DataFrame) -> int | None:
+def needed_seeds(diffs) -> int | None:
     """Seeds per scene (on these scenes) for the observed mean difference to be resolved with 80 % power, from
     each scene's spread over seeds; None when there is no spread to go by or no difference."""
     groups = _by_scene(diffs)
@@ -169,7 +172,7 @@ def needed_seeds(diffs: pd.DataFrame) -> int | None:
     return MAX_N + 1
 
 
-def needed_scenes(diffs: pd.DataFrame, seeds: int) -> int | None:
+def needed_scenes(diffs, seeds: int) -> int | None:
     """Scenes (each run with ``seeds`` seeds) for the observed mean difference to be resolved across scenes with
     80 % power: a nested model, Var(scene mean) = between-scene variance + seed variance / seeds, its two parts
     estimated from the observed scene means and seeds (one seed: their sum). None with < 2 scenes or no
