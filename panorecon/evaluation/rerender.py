@@ -52,9 +52,12 @@ def load_results(csv) -> pd.DataFrame:
     dup = frame.duplicated(["label", "scene", "seed"], keep=False)
     if dup.any():
         r = frame[dup].iloc[0]
+        times = int(
+            ((frame["label"] == r["label"]) & (frame["scene"] == r["scene"]) & (frame["seed"] == r["seed"])).sum()
+        )
         raise PanoreconInputError(
             f"--from-csv {csv}: run {r['label']!r} on scene {r['scene']!r} with seed {r['seed']} appears "
-            f"{int(dup.sum())} times; expected one row per run"
+            f"{times} times; expected one row per run"
         )
     return frame
 

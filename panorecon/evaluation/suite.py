@@ -27,9 +27,9 @@ every panorama under the root that matches it.
 
 ``seeds``: each seed sets the training seed (TrainConfig.seed) and seeds the simulated teacher's errors and the
 random point source (``Row.seed``); a stage the seed does not change (a real teacher's depth) is shared between
-seeds. ``reference``: keys and values (as in [defaults]) that pick exactly one table row; results.md compares
-every other row with it on the same scene and seed (``evaluation/stats.py``). Without ``seeds`` a row's seed is
-its ``seed`` setting (default 0).
+seeds. ``reference``: keys and values (as in [defaults]; ``label`` is the row's table label) that pick exactly
+one table row; results.md compares every other row with it on the same scene and seed (``evaluation/stats.py``).
+Without ``seeds`` a row's seed is its ``seed`` setting (default 0).
 
 The file is checked against a typed schema before anything runs: unknown tables and keys are errors that
 name the closest valid one, every value has its key's type and range, and ``resolve_names`` checks every
@@ -304,7 +304,8 @@ def load_suite(path, root: str | None = None) -> Suite:
                     raise PanoreconInputError(f"suite {path}: no {need!r} in [defaults], [grid] or [[variants]]")
             train_cfg = {k: v for k, v in spec.items() if k in train_fields}
             label = spec.get("label") or " / ".join(str(spec.get(c, "")) for c in row_columns)
-            if reference and all(spec.get(k) == v for k, v in reference.items()) and label not in reference_labels:
+            named = {**spec, "label": label}  # reference = { label = "..." } names a row by its table label
+            if reference and all(named.get(k) == v for k, v in reference.items()) and label not in reference_labels:
                 reference_labels.append(label)
             extra = {c: spec.get(c) for c in row_columns if c not in ROW_KEYS}
             depth = _with_root(spec.get("depth"), root, path)
@@ -320,7 +321,9 @@ def load_suite(path, root: str | None = None) -> Suite:
                             source=spec["source"],
                             teacher=spec.get("teacher"),
                             views=spec.get("views"),
-                            train={**train_cfg, **({"seed": seed} if seeds else {})} if spec.get("train", True) else None,
+                            train={**train_cfg, **({"seed": seed} if seeds else {})}
+                            if spec.get("train", True)
+                            else None,
                             label=label,
                             depth=depth,
                             extra={

@@ -256,3 +256,15 @@ def test_a_reference_that_matches_several_rows_says_which(tmp_path):
         load_suite(write(tmp_path, text))
     ok = load_suite(write(tmp_path, text.replace("source = 'fibonacci' }", "source = 'fibonacci', views = 12 }")))
     assert ok.reference == "fibonacci / 12"
+
+
+def test_every_shipped_table_suite_can_name_seeds_and_a_reference(tmp_path):
+    """The paper's tables (eval/suites/table*.toml) take seeds and a reference row by its label."""
+    from pathlib import Path
+
+    for p in sorted((Path(__file__).parents[2] / "eval" / "suites").glob("table*.toml")):
+        first = load_suite(p).rows[0].label
+        q = tmp_path / p.name
+        q.write_text(f"seeds = [0, 1]\nreference = {{ label = {first!r} }}\n" + p.read_text())
+        s = load_suite(q)
+        assert s.reference == first and s.seeds == [0, 1] and len(s.rows) == 2 * len(load_suite(p).rows), p.name
