@@ -352,6 +352,10 @@ def cmd_ablate(args) -> int:
     from .evaluation.report import average_table
     from .evaluation.suite import load_suite
 
+    if args.from_csv:
+        return _ablate_from_csv(args)
+    if not args.suite:
+        raise PanoreconInputError("ablate: give a suite file (e.g. eval/suites/quick.toml) or --from-csv results.csv")
     resolve_device(args.device)
     suite = load_suite(args.suite, args.root)
     print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
@@ -371,6 +375,17 @@ def cmd_ablate(args) -> int:
         for _, r in frame[frame["warning"].fillna("").astype(str) != ""].iterrows():
             print(f"WARNING ({r['label']}, {r['scene']}): {r['warning']}")
     print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png, report.html")
+    return 0
+
+
+def _ablate_from_csv(args) -> int:
+    """``ablate --from-csv CSV [SUITE] --out DIR``: tables, report and plots from a results.csv, nothing run."""
+    from .evaluation.rerender import rerender
+    from .evaluation.suite import load_suite
+
+    suite = load_suite(args.suite, args.root) if args.suite else None
+    frame = rerender(args.from_csv, args.out, suite)
+    print(f"{len(frame)} runs from {args.from_csv} -> {Path(args.out) / 'results.md'}, report.html, pareto.png")
     return 0
 
 
@@ -533,7 +548,9 @@ def build_parser() -> argparse.ArgumentParser:
     ab = sub.add_parser(
         "ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, report.html"
     )
-    ab.add_argument("suite", help="suite file, e.g. eval/suites/quick.toml")
+    ab.add_argument(
+        "suite", nargs="?", help="suite file, e.g. eval/suites/quick.toml (with --from-csv: optional, for its titles)"
+    )
     ab.add_argument(
         "--out", required=True, type=T.out_dir, help="output folder (its cache/ makes a rerun or a resumed run cheap)"
     )
@@ -550,6 +567,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ab.add_argument("--no-progress", action="store_true")
     ab.add_argument("--root", default=None, help="dataset root for a suite's {root} (default $PANORECON_DATASET_ROOT)")
+    ab.add_argument(
+        "--from-csv",
+        default=None,
+        metavar="CSV",
+        help="re-render results.md, report.html and plots from a results.csv into --out; nothing is run",
+    )
     _add_device(ab)
     ab.set_defaults(fn=cmd_ablate)
 

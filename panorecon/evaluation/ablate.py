@@ -172,19 +172,29 @@ def run_suite(
             for row, pk, tk in tasks
         ]
     )
-    with atomic_write(out / "results.csv") as tmp:
-        frame.to_csv(tmp, index=False)
-    from .report import write_plots, write_results_md
-    from .report_html import RowAssets, write_report_html
+    if suite.reference:
+        frame["reference"] = frame["label"] == suite.reference
+    from .report_html import RowAssets
 
-    write_plots(frame, suite, out)
-    write_results_md(frame, suite, out, wall_seconds=time.perf_counter() - t0)
     assets = [
         RowAssets(cache.folder("train", tk) / "renders" if tk else None, cache.folder("points", pk) / "cloud.ply", pk)
         for _, pk, tk in tasks
     ]
-    write_report_html(frame, suite, out, assets, wall_seconds=time.perf_counter() - t0)
+    write_outputs(frame, suite, out, assets, t0)
     return frame
+
+
+def write_outputs(frame: pd.DataFrame, suite: Suite, out: Path, assets: list | None, t0: float) -> None:
+    """DIR/results.csv, pareto.png and the learning curves, results.md and report.html from the results
+    ``frame`` (``assets``: one ``RowAssets`` per row, or None: no pictures); ``t0``: perf_counter at the start."""
+    from .report import write_plots, write_results_md
+    from .report_html import write_report_html
+
+    with atomic_write(out / "results.csv") as tmp:
+        frame.to_csv(tmp, index=False)
+    write_plots(frame, suite, out)
+    write_results_md(frame, suite, out, wall_seconds=time.perf_counter() - t0)
+    write_report_html(frame, suite, out, assets, wall_seconds=time.perf_counter() - t0)
 
 
 def _num(v):
@@ -200,6 +210,7 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
         return {
             "label": row.label,
             "scene": row.scene,
+            "seed": row.seed,
             "width": row.width,
             "source": row.source,
             "teacher": row.teacher,
@@ -214,6 +225,7 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
     rec = {
         "label": row.label,
         "scene": row.scene,
+        "seed": row.seed,
         "width": row.width,
         "source": row.source,
         "teacher": row.teacher,

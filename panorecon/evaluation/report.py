@@ -41,29 +41,161 @@ def _fmt(v, f: str) -> str:
     return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f.format(v)
 
 
+def with_seed(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with a ``seed`` column (0 where results predate seeds)."""
+    return frame if "seed" in frame else frame.assign(seed=0)
+
+
 def average_table(frame: pd.DataFrame) -> pd.DataFrame:
-    """Mean over scenes of every numeric table column, one row per label (in the suite's order)."""
+    """Mean over scenes (each scene's mean over its seeds) of every numeric table column, one row per label (in
+    the suite's order), with ``scenes``, ``seeds`` (most seeds of a scene) and ``<column>_hw``: the half-width
+    of the mean's 95 % interval over seeds with the scenes fixed (NaN with one seed, and for counts;
+    ``stats.these_scenes``)."""
+    from .stats import DIRECTION, run_values, these_scenes
+
+    frame = with_seed(frame)
     cols = [c for c, *_ in TABLE_COLUMNS if c in frame]
     order = list(dict.fromkeys(frame["label"]))
-    mean = frame.groupby("label", sort=False)[cols].mean(numeric_only=True).reindex(order)
-    mean.insert(0, "scenes", frame.groupby("label", sort=False)["scene"].nunique().reindex(order))
-    return mean
+    rows = []
+    for label in order:
+        g = frame[frame["label"] == label]
+        rec = {"scenes": g["scene"].nunique(), "seeds": int(g.groupby("scene")["seed"].nunique().max())}
+        for c in cols:
+            iv = these_scenes(run_values(g, c))
+            # counts (points, Gaussians, panoramas) are shown without one
+            rec[c], rec[f"{c}_hw"] = iv.estimate, iv.half_width if DIRECTION.get(c, 0) else math.nan
+        rows.append(rec)
+    return pd.DataFrame(rows, index=pd.Index(order, name="label"))
+
+
+def _design_cell(r) -> str:
+    seeds = int(r.get("seeds", 1)) if "seeds" in r and r["seeds"] == r["seeds"] else 1
+    return f"{int(r['scenes'])} × {seeds}" if seeds > 1 else str(int(r["scenes"]))
 
 
 def markdown_table(table: pd.DataFrame, label_header: str) -> str:
+    """A table of ``average_table``: "mean ± half-width" where there is an interval."""
     heads = [(c, h, f) for c, h, f in TABLE_COLUMNS if c in table]
+    seeded = "seeds" in table and (table["seeds"] > 1).any()
     lines = [
-        "| " + " | ".join([label_header, "scenes"] + [h for _, h, _ in heads]) + " |",
+        "| " + " | ".join([label_header, "scenes × seeds" if seeded else "scenes"] + [h for _, h, _ in heads]) + " |",
         "|" + "---|" * (len(heads) + 2),
     ]
     for label, r in table.iterrows():
         trained = {c: not math.isnan(r.get(c.replace("lpips", "psnr"), math.nan)) for c, _, _ in heads}
-        # a trained row without LPIPS: "n/a", its reason listed under the table ("n/a cells: ...")
-        cells = [
-            ("n/a" if c.startswith("lpips") and math.isnan(r[c]) and trained[c] else _fmt(r[c], f)) for c, _, f in heads
-        ]
-        lines.append("| " + " | ".join([str(label), str(int(r["scenes"]))] + cells) + " |")
+        cells = []
+        for c, _, f in heads:
+            # a trained row without LPIPS: "n/a", its reason listed under the table ("n/a cells: ...")
+            cell = "n/a" if c.startswith("lpips") and math.isnan(r[c]) and trained[c] else _fmt(r[c], f)
+            hw = r.get(f"{c}_hw", math.nan)
+            if cell != "n/a" and not math.isnan(hw):
+                cell += f" ± {_fmt(hw, f)}"
+            cells.append(cell)
+        lines.append("| " + " | ".join([str(label), _design_cell(r)] + cells) + " |")
     return "\n".join(lines)
+
+
+def primary_metric(frame: pd.DataFrame) -> tuple[str, str, bool] | None:
+    """(column, axis label, higher is better) of the number a suite is judged by: held-out PSNR, else
+    pseudo-label PSNR (rows that train), else AbsRel; None when no run has any of them."""
+    for col, name, hib in (
+        ("psnr_ho", "held-out PSNR (dB)", True),
+        ("psnr_pl", "pseudo-label PSNR (dB)", True),
+        ("abs_rel", "AbsRel (median-aligned)", False),
+    ):
+        if col in frame and pd.to_numeric(frame[col], errors="coerce").notna().any():
+            return col, name, hib
+    return None
+
+
+def _diff_cell(iv, fmt: str, v: str) -> str:
+    if math.isnan(iv.estimate):
+        return "n/a"
+    est = fmt.format(iv.estimate).replace("-", "−")
+    if math.isnan(iv.low):
+        return f"{est} ({v})"
+    return f"{'+' if iv.estimate >= 0 else ''}{est} ± {fmt.format(iv.half_width)} {v}"
+
+
+def comparison_rows(frame: pd.DataFrame, reference: str, column: str) -> list:
+    """``stats.compare`` of every other label against ``reference`` on ``column`` (suite order)."""
+    from .stats import compare
+
+    return [compare(frame, column, label, reference) for label in dict.fromkeys(frame["label"]) if label != reference]
+
+
+COMPARISON_NOTE = (
+    "Paired differences (row − {ref}, run by run on the same scene and seed: the same teacher noise and "
+    "held-out views) with 95 % intervals. *These scenes*: scenes fixed, seeds resampled (could other seeds "
+    "change it?). *New scenes*: scenes as a sample, seeds nested (would it hold on other scenes like these?). "
+    "*To resolve*: scenes × seeds that would resolve the observed difference with 80 % power, from the "
+    "observed spread. Method: `panorecon/evaluation/stats.py`, docs/guide.md (Intervals and verdicts)."
+)
+
+
+def comparison_tables(frame: pd.DataFrame, reference: str, label_header: str) -> list[tuple[list, list]]:
+    """The "against the reference" tables as (headers, rows of cells): the primary metric's paired differences
+    on these scenes and across new scenes, with verdicts and the scenes × seeds that would resolve them; then
+    every metric with a direction, on these scenes. Empty when the frame has no such metric or no reference."""
+    from .stats import DIRECTION
+
+    frame = with_seed(frame)
+    prim = primary_metric(frame)
+    if prim is None or reference not in set(frame["label"]):
+        return []
+    col, name, _ = prim
+    fmt = dict((c, f) for c, _, f in TABLE_COLUMNS).get(col, "{:.4g}")
+    first = (
+        [label_header, f"{name}: Δ these scenes", "to resolve", "Δ new scenes", "to resolve"],
+        [
+            [
+                c.label,
+                _diff_cell(c.these, fmt, c.verdict_these),
+                c.to_resolve_these,
+                _diff_cell(c.new, fmt, c.verdict_new),
+                c.to_resolve_new,
+            ]
+            for c in comparison_rows(frame, reference, col)
+        ],
+    )
+    heads = [
+        (c, h, f)
+        for c, h, f in TABLE_COLUMNS
+        if c in frame and DIRECTION.get(c, 0) != 0 and pd.to_numeric(frame[c], errors="coerce").notna().any()
+    ]
+    per_metric = {c: comparison_rows(frame, reference, c) for c, _, _ in heads}
+    labels = [label for label in dict.fromkeys(frame["label"]) if label != reference]
+    every = (
+        [label_header] + [h for _, h, _ in heads],
+        [
+            [label] + [_diff_cell(per_metric[c][i].these, f, per_metric[c][i].verdict_these) for c, _, f in heads]
+            for i, label in enumerate(labels)
+        ],
+    )
+    return [first, every]
+
+
+def _markdown(headers: list, rows: list) -> str:
+    return "\n".join(
+        ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+        + ["| " + " | ".join(map(str, r)) + " |" for r in rows]
+    )
+
+
+def comparison_markdown(frame: pd.DataFrame, reference: str, label_header: str) -> str:
+    """The "against the reference" section of results.md (``comparison_tables``)."""
+    tables = comparison_tables(frame, reference, label_header)
+    if not tables:
+        return ""
+    return "\n\n".join(
+        [
+            f"## Against the reference: {reference}",
+            COMPARISON_NOTE.format(ref=reference),
+            _markdown(*tables[0]),
+            "Every metric, these scenes (lower is better for LPIPS, AbsRel, Chamfer, Acc., Comp., seconds and MB):",
+            _markdown(*tables[1]),
+        ]
+    )
 
 
 def _paper_block(paper: dict) -> str:
@@ -86,19 +218,32 @@ def _paper_block(paper: dict) -> str:
 
 def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float, per_scene: bool = True) -> None:
     """DIR/results.md: the averaged table, the per-scene table, the paper's numbers, notes on n/a cells."""
+    frame = with_seed(frame)
+    seeds = sorted(set(frame["seed"]))
+    cached = sorted(set(frame["cached"].astype(str))) if "cached" in frame else ["unrecorded"]
+    head = " / ".join(suite.row_columns)
+    reference = getattr(suite, "reference", None)
     parts = [
         f"# {suite.title}",
         "",
-        f"Suite `{suite.path}`; {len(frame)} runs over {frame['scene'].nunique()} scenes; this invocation took "
-        f"{wall_seconds:.1f} s (cached stages: {', '.join(sorted(set(frame['cached'])))}). PSNR/SSIM/LPIPS "
+        f"Suite `{suite.path}`; {len(frame)} runs over {frame['scene'].nunique()} scenes and {len(seeds)} seed"
+        f"{'s' if len(seeds) > 1 else ''} ({', '.join(map(str, seeds))}); this invocation took "
+        f"{wall_seconds:.1f} s (cached stages: {', '.join(cached)}). PSNR/SSIM/LPIPS "
         "without a prefix are the pseudo-label protocol (the paper's); held-out = true renders away from the "
         "panorama centre. Seconds and peak MB are those of the process that computed each stage.",
         "",
-        "## Averaged over scenes",
+        "## Averaged over scenes" + (" and seeds" if len(seeds) > 1 else ""),
         "",
-        markdown_table(average_table(frame), " / ".join(suite.row_columns)),
+        (
+            "Mean ± half-width of its 95 % interval over seeds, the scenes fixed (Student t, stratified by scene).\n\n"
+            if len(seeds) > 1
+            else ""
+        )
+        + markdown_table(average_table(frame), head),
         "",
     ]
+    if reference:
+        parts += [comparison_markdown(frame, reference, head), ""]
     notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]
@@ -112,7 +257,7 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
     if per_scene:
         parts += ["## Per scene", ""]
         for scene, g in frame.groupby("scene", sort=False):
-            parts += [f"### {scene}", "", markdown_table(average_table(g), " / ".join(suite.row_columns)), ""]
+            parts += [f"### {scene}", "", markdown_table(average_table(g), head), ""]
     parts += [
         "Plots: `pareto.png` (error against run time), `psnr_vs_iterations.png` (when rows train), "
         "`heldout_psnr_vs_seconds.png` (when they have held-out views).",
@@ -181,7 +326,8 @@ def pareto_plot(
     label_col: str = "label",
 ) -> None:
     """Two panels of y against x (log seconds): every run coloured by scene and labelled (left), and the
-    per-label means over scenes with their Pareto front (right)."""
+    per-label means over scenes with their Pareto front (right), with 95 % error bars where ``mean`` has
+    ``<x>_hw`` / ``<y>_hw`` half-widths (``average_table``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -200,13 +346,27 @@ def pareto_plot(
     front = pareto(pts)
     for i, (_, r) in enumerate(mean.iterrows()):
         ax_mean.scatter(r[x], r[y], s=40, color="C3" if i in front else "C0", zorder=3)
+        xe, ye = r.get(f"{x}_hw", math.nan), r.get(f"{y}_hw", math.nan)
+        if not (math.isnan(xe) and math.isnan(ye)):
+            ax_mean.errorbar(
+                r[x],
+                r[y],
+                xerr=None if math.isnan(xe) else [[min(xe, 0.999 * r[x])], [xe]],  # log axis: stay above 0
+                yerr=None if math.isnan(ye) else ye,
+                fmt="none",
+                ecolor="C3" if i in front else "C0",
+                elinewidth=1,
+                capsize=3,
+                zorder=2,
+            )
     fp = sorted((mean[x].iloc[i], mean[y].iloc[i]) for i in front)
     ax_mean.plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1.2, label="Pareto front (red)")
     ax_mean.set(
         xlabel=f"{x} (seconds, log; mean over scenes)",
         ylabel=f"{ylabel}, mean over scenes",
         xscale="log",
-        title="averaged",
+        title="averaged"
+        + (" (bars: 95 % interval over seeds)" if f"{y}_hw" in mean and mean[f"{y}_hw"].notna().any() else ""),
     )
     ax_mean.legend(fontsize=8)
 
@@ -228,21 +388,25 @@ def pareto_plot(
     plt.close(fig)
 
 
+def _curve(text: str) -> dict[float, float]:
+    """ "a:b;c:d" -> {a: b, c: d}."""
+    return dict(tuple(map(float, kv.split(":"))) for kv in text.split(";"))
+
+
 def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
-    """pareto.png (held-out PSNR, else pseudo-label PSNR, else AbsRel, against total seconds),
-    psnr_vs_iterations.png from each training run's history and heldout_psnr_vs_seconds.png where runs have
-    held-out views."""
+    """pareto.png (``primary_metric`` against total seconds, 95 % error bars over seeds), psnr_vs_iterations.png
+    from each training run's history (mean over scenes and seeds, 95 % band over seeds) and
+    heldout_psnr_vs_seconds.png where runs have held-out views."""
+    from .stats import these_scenes
+
+    frame = with_seed(frame)
     trains = "psnr_pl" in frame and frame["psnr_pl"].notna().any()
-    y, ylabel, hib = (
-        ("psnr_ho", "held-out PSNR (dB)", True)
-        if trains and frame.get("psnr_ho") is not None and frame["psnr_ho"].notna().any()
-        else ("psnr_pl", "pseudo-label PSNR (dB)", True)
-        if trains
-        else ("abs_rel", "AbsRel (median-aligned)", False)
-    )
-    ok = frame[frame[y].notna()]
-    if len(ok):
-        mean = ok.groupby("label", sort=False)[["sec_total", y]].mean()
+    prim = primary_metric(frame)
+    if prim is not None:
+        y, ylabel, hib = prim
+        ok = frame[pd.to_numeric(frame[y], errors="coerce").notna()]
+        mean = average_table(ok)
+        mean = mean[[c for c in ("sec_total", y, "sec_total_hw", f"{y}_hw") if c in mean]]
         pareto_plot(mean, ok, "sec_total", y, ylabel, out / "pareto.png", hib, suite.title)
     if trains and "history" in frame:
         import matplotlib
@@ -251,12 +415,25 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
         import matplotlib.pyplot as plt
 
         fig, ax = plt.subplots(figsize=(7.5, 5))
-        for label, g in frame[frame["history"].notna()].groupby("label", sort=False):
-            curves = [dict(tuple(map(float, kv.split(":"))) for kv in h.split(";")) for h in g["history"] if h]
-            its = sorted(set.intersection(*(set(c) for c in curves))) if curves else []
-            if its:
-                ax.plot(its, [sum(c[i] for c in curves) / len(curves) for i in its], label=str(label))
-        ax.set(xlabel="iteration", ylabel="training-view PSNR (dB, mean over scenes)", title=suite.title)
+        banded = False
+        for k, (label, g) in enumerate(frame[frame["history"].notna()].groupby("label", sort=False)):
+            curves = [(scene, _curve(h)) for scene, h in zip(g["scene"], g["history"]) if h]
+            its = sorted(set.intersection(*(set(c) for _, c in curves))) if curves else []
+            if not its:
+                continue
+            ivs = [
+                these_scenes(pd.DataFrame({"scene": [s for s, _ in curves], "value": [c[i] for _, c in curves]}))
+                for i in its
+            ]
+            ax.plot(its, [iv.estimate for iv in ivs], color=f"C{k % 10}", label=str(label))
+            if not any(math.isnan(iv.low) for iv in ivs):
+                ax.fill_between(its, [iv.low for iv in ivs], [iv.high for iv in ivs], color=f"C{k % 10}", alpha=0.2)
+                banded = True
+        ax.set(
+            xlabel="iteration",
+            ylabel="training-view PSNR (dB, mean over scenes" + (" and seeds)" if banded else ")"),
+            title=suite.title + ("\nbands: 95 % interval over seeds" if banded else ""),
+        )
         ax.legend(fontsize=8)
         fig.tight_layout()
         with atomic_write(out / "psnr_vs_iterations.png", suffix=".png") as tmp:
@@ -269,8 +446,8 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
 
 
 def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") -> None:
-    """Held-out PSNR against training seconds, one line per run (colour: label, line style: scene), from the
-    ``history_heldout`` column ("seconds:psnr;...")."""
+    """Held-out PSNR against training seconds, one line per run (colour: label, line style: scene; a label and
+    scene's seeds share both and one legend entry), from the ``history_heldout`` column ("seconds:psnr;...")."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -279,6 +456,7 @@ def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") ->
     fig, ax = plt.subplots(figsize=(7.5, 5))
     labels = list(dict.fromkeys(frame["label"]))
     scenes = list(dict.fromkeys(frame["scene"])) if "scene" in frame else [None]
+    seen: set = set()
     for _, r in frame.iterrows():
         pts = [tuple(map(float, kv.split(":"))) for kv in str(r["history_heldout"]).split(";")]
         k, s = labels.index(r["label"]), scenes.index(r.get("scene"))
@@ -287,8 +465,11 @@ def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") ->
             [p[1] for p in pts],
             color=f"C{k % 10}",
             ls=("-", "--", ":", "-.")[s % 4],
-            label=f"{r['label']}" + (f" / {r['scene']}" if r.get("scene") is not None else ""),
+            label="_nolegend_"
+            if (k, s) in seen
+            else f"{r['label']}" + (f" / {r['scene']}" if r.get("scene") is not None else ""),
         )
+        seen.add((k, s))
     ax.set(xlabel="training seconds", ylabel="held-out PSNR (dB)", title=title)
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..io import atomic_write
-from .report import TABLE_COLUMNS, average_table
+from .report import COMPARISON_NOTE, TABLE_COLUMNS, average_table, comparison_tables, with_seed
 
 CSS = """body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#222;max-width:1400px}
 table{border-collapse:collapse;margin:8px 0 20px}th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}
@@ -52,23 +52,38 @@ def data_uri(png: Path) -> str:
 
 def _table(table: pd.DataFrame, label_header: str) -> str:
     heads = [(c, h, f) for c, h, f in TABLE_COLUMNS if c in table]
+    seeded = "seeds" in table and (table["seeds"] > 1).any()
     out = [
         "<table class=sortable><thead><tr>",
-        f"<th>{html.escape(label_header)}</th><th>scenes</th>",
+        f"<th>{html.escape(label_header)}</th><th>{'scenes × seeds' if seeded else 'scenes'}</th>",
         "".join(f"<th>{html.escape(h)}</th>" for _, h, _ in heads),
         "</tr></thead><tbody>",
     ]
     for label, r in table.iterrows():
-        cells = [f"<td>{html.escape(str(label))}</td>", f"<td data-v='{int(r['scenes'])}'>{int(r['scenes'])}</td>"]
+        n = int(r["scenes"]) * int(r.get("seeds", 1))
+        design = f"{int(r['scenes'])} × {int(r['seeds'])}" if seeded else str(int(r["scenes"]))
+        cells = [f"<td>{html.escape(str(label))}</td>", f"<td data-v='{n}'>{design}</td>"]
         for c, _, f in heads:
-            v = r[c]
+            v, hw = r[c], r.get(f"{c}_hw", math.nan)
             ok = v is not None and not (isinstance(v, float) and math.isnan(v))
+            pm = f" ± {f.format(hw)}" if ok and not math.isnan(hw) else ""
             cells.append(
-                f"<td data-v='{float(v)!r}'>{f.format(v)}</td>" if ok else "<td data-v='NaN' class=na>n/a</td>"
+                f"<td data-v='{float(v)!r}'>{f.format(v)}{pm}</td>" if ok else "<td data-v='NaN' class=na>n/a</td>"
             )
         out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
     return "".join(out)
+
+
+def _plain_table(headers: list, rows: list) -> str:
+    """A sortable table of text cells (sorted as text)."""
+    return (
+        "<table class=sortable><thead><tr>"
+        + "".join(f"<th>{html.escape(str(h))}</th>" for h in headers)
+        + "</tr></thead><tbody>"
+        + "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+        + "</tbody></table>"
+    )
 
 
 def cloud_thumbnail(cloud: Path, out: Path) -> Path:
@@ -105,27 +120,44 @@ def _strip(row: pd.Series, assets: RowAssets, thumbs: Path) -> str:
     )
 
 
-def write_report_html(frame: pd.DataFrame, suite, out: Path, assets: list[RowAssets], wall_seconds: float) -> Path:
-    """DIR/report.html from results ``frame`` (one row per run, in ``assets``' order) and DIR's plots."""
+def write_report_html(
+    frame: pd.DataFrame, suite, out: Path, assets: list[RowAssets] | None, wall_seconds: float
+) -> Path:
+    """DIR/report.html from results ``frame`` (one row per run, in ``assets``' order; None: no pictures) and
+    DIR's plots."""
     out = Path(out)
+    frame = with_seed(frame)
     head = " / ".join(suite.row_columns)
+    seeds = sorted(set(frame["seed"]))
+    reference = getattr(suite, "reference", None)
+    tables = comparison_tables(frame, reference, head) if reference else []
     parts = [
         f"<!doctype html><html><head><meta charset=utf-8><title>{html.escape(suite.title)}</title>",
         f"<style>{CSS}</style></head><body><h1>{html.escape(suite.title)}</h1>",
         f"<p>Suite <code>{html.escape(str(suite.path))}</code>: {len(frame)} runs over "
-        f"{frame['scene'].nunique()} scenes; this invocation took {wall_seconds:.1f} s. PSNR/SSIM/LPIPS without "
+        f"{frame['scene'].nunique()} scenes and {len(seeds)} seed{'s' if len(seeds) > 1 else ''}; this invocation "
+        f"took {wall_seconds:.1f} s. PSNR/SSIM/LPIPS without "
         "a prefix: pseudo-label protocol; held-out: true renders away from the panorama centre. "
-        "Click a column header to sort.</p>",
-        "<h2>Averaged over scenes</h2>",
+        + ("Cells: mean ± half-width of its 95 % interval over seeds, the scenes fixed. " if len(seeds) > 1 else "")
+        + "Click a column header to sort.</p>",
+        "<h2>Averaged over scenes" + (" and seeds" if len(seeds) > 1 else "") + "</h2>",
         _table(average_table(frame), head),
     ]
+    if tables:
+        parts += [
+            f"<h2>Against the reference: {html.escape(reference)}</h2>",
+            f"<p>{html.escape(COMPARISON_NOTE.format(ref=reference)).replace('*', '')}</p>",
+            _plain_table(*tables[0]),
+            "<p>Every metric, these scenes:</p>",
+            _plain_table(*tables[1]),
+        ]
     for title, name in (("Error against run time", "pareto.png"), ("PSNR against steps", "psnr_vs_iterations.png")):
         if (out / name).exists():
             parts += [f"<h2>{title}</h2>", f"<img class=plot alt='{name}' src='{data_uri(out / name)}'>"]
     parts.append("<h2>Per scene</h2>")
     for scene, g in frame.groupby("scene", sort=False):
         parts += [f"<h3>{html.escape(str(scene))}</h3>", _table(average_table(g), head)]
-    strips = [_strip(r, a, out / "thumbs") for (_, r), a in zip(frame.iterrows(), assets)]
+    strips = [_strip(r, a, out / "thumbs") for (_, r), a in zip(frame.iterrows(), assets or [])]
     if any(strips):
         parts += ["<h2>Every run</h2>"] + strips
     parts.append(f"<script>{JS}</script></body></html>")

@@ -9,6 +9,8 @@
     [grid]                            # the cross product of these lists
     scene = ["bedroom", "beach"]
     source = ["fibonacci", "random"]
+    seeds = [0, 1, 2]                 # optional: every row runs once per seed (training, teacher noise, random source)
+    reference = { source = "fibonacci" }  # optional: the row every other row is compared with, pair by pair
     [[variants]]                      # optional: named settings, crossed with the grid
     label = "Fibonacci 15"
     views = 15
@@ -22,6 +24,12 @@ depth_kind (a real panorama's true depth, as the CLI's --depth options), and Tra
 ``{root}`` in a scene or depth is the dataset root (``load_suite(root=...)``, ``ablate --root``, else
 $PANORECON_DATASET_ROOT); a dataset scene whose key has a ``*`` (``stanford2d3d:{root}/area_3/*``) stands for
 every panorama under the root that matches it.
+
+``seeds``: each seed sets the training seed (TrainConfig.seed) and seeds the simulated teacher's errors and the
+random point source (``Row.seed``); a stage the seed does not change (a real teacher's depth) is shared between
+seeds. ``reference``: keys and values (as in [defaults]; ``label`` is the row's table label) that pick exactly
+one table row; results.md compares every other row with it on the same scene and seed (``evaluation/stats.py``).
+Without ``seeds`` a row's seed is its ``seed`` setting (default 0).
 
 The file is checked against a typed schema before anything runs: unknown tables and keys are errors that
 name the closest valid one, every value has its key's type and range, and ``resolve_names`` checks every
@@ -50,7 +58,16 @@ except ModuleNotFoundError:  # Python 3.10
 
 ROW_KEYS = {"scene", "width", "source", "teacher", "views", "train", "label", "depth", "depth_scale", "depth_kind"}
 ROOT_ENV = "PANORECON_DATASET_ROOT"
-TOP_KEYS = {"title": str, "rows": list, "defaults": dict, "grid": dict, "variants": list, "paper": dict}
+TOP_KEYS = {
+    "title": str,
+    "rows": list,
+    "defaults": dict,
+    "grid": dict,
+    "variants": list,
+    "paper": dict,
+    "seeds": list,
+    "reference": dict,
+}
 PAPER_KEYS = {"caption": str, "columns": list, "rows": list}
 PAPER_ROW_KEYS = {"label": str, "values": list, "match": dict}
 # ranges of row values (ints not named here must be >= 0, floats finite and >= 0)
@@ -76,6 +93,8 @@ class Suite:
     row_columns: list[str]
     paper: dict = field(default_factory=dict)
     path: Path | None = None
+    seeds: list[int] = field(default_factory=lambda: [0])
+    reference: str | None = None  # the label of the reference row
 
 
 def _train_fields() -> set[str]:
@@ -194,6 +213,40 @@ def _check_top(path: Path, data: dict) -> None:
                 )
 
 
+def _check_seeds(path: Path, data: dict, tables: list[dict]) -> list[int] | None:
+    """The suite's ``seeds`` (distinct integers in the seed range), or None when it names none."""
+    if "seeds" not in data:
+        return None
+    seeds = data["seeds"]
+    if not seeds or any(not isinstance(x, int) or isinstance(x, bool) for x in seeds):
+        raise PanoreconInputError(f"suite {path}: seeds = {seeds!r}: expected a non-empty list of integers")
+    for x in seeds:
+        try:
+            T.SEED(str(x))
+        except Exception as e:  # argparse.ArgumentTypeError: says the range
+            raise PanoreconInputError(f"suite {path}: seeds: {e}") from None
+    if len(set(seeds)) != len(seeds):
+        raise PanoreconInputError(f"suite {path}: seeds = {seeds!r} repeats a seed")
+    if any("seed" in t for t in tables):
+        raise PanoreconInputError(f"suite {path}: give the seeds once: seeds = [...] or a seed setting, not both")
+    return list(seeds)
+
+
+def _check_reference(path: Path, data: dict, schema: dict, choices: dict) -> dict | None:
+    ref = data.get("reference")
+    if ref is None:
+        return None
+    allowed = {k: v for k, v in schema.items() if k not in ("scene", "seed")}
+    if not ref:
+        raise PanoreconInputError(f"suite {path}: reference is empty; expected e.g. reference = {{ source = ... }}")
+    for k, v in ref.items():
+        if k not in allowed:
+            hint = "; the reference is a table row, compared on every scene and seed" if k in schema else ""
+            raise PanoreconInputError(str(_unknown(path, "reference", k, allowed)) + hint)
+        check_value(path, "reference", k, v, schema, choices)
+    return ref
+
+
 def _with_root(value, root: str | None, path: Path):
     if not isinstance(value, str) or "{root}" not in value:
         return value
@@ -240,7 +293,9 @@ def load_suite(path, root: str | None = None) -> Suite:
     for c in row_columns:
         if c not in schema:
             raise _unknown(path, "rows", c, schema)
-    rows = []
+    seeds = _check_seeds(path, data, [defaults, grid, *variants])
+    reference = _check_reference(path, data, schema, choices)
+    rows, reference_labels = [], []
     for variant in variants:
         for combo in itertools.product(*grid.values()):
             spec = {**defaults, **dict(zip(grid, combo)), **variant}
@@ -249,28 +304,58 @@ def load_suite(path, root: str | None = None) -> Suite:
                     raise PanoreconInputError(f"suite {path}: no {need!r} in [defaults], [grid] or [[variants]]")
             train_cfg = {k: v for k, v in spec.items() if k in train_fields}
             label = spec.get("label") or " / ".join(str(spec.get(c, "")) for c in row_columns)
+            named = {**spec, "label": label}  # reference = { label = "..." } names a row by its table label
+            if reference and all(named.get(k) == v for k, v in reference.items()) and label not in reference_labels:
+                reference_labels.append(label)
             extra = {c: spec.get(c) for c in row_columns if c not in ROW_KEYS}
             depth = _with_root(spec.get("depth"), root, path)
             if depth is None and ("depth_scale" in spec or "depth_kind" in spec):
                 raise PanoreconInputError(f"suite {path}: depth_scale / depth_kind without a depth file")
             depth = (depth, spec.get("depth_scale"), spec.get("depth_kind", "distance")) if depth else None
             for scene in _expand_scene(_with_root(spec["scene"], root, path), path):
-                rows.append(
-                    Row(
-                        scene=scene,
-                        width=int(spec.get("width", 512)),
-                        source=spec["source"],
-                        teacher=spec.get("teacher"),
-                        views=spec.get("views"),
-                        train=train_cfg if spec.get("train", True) else None,
-                        label=label,
-                        depth=depth,
-                        extra={**extra, **{k: spec[k] for k in ("strategy", "labels", "iters", "res") if k in spec}},
+                for seed in seeds or [spec.get("seed", 0)]:
+                    rows.append(
+                        Row(
+                            scene=scene,
+                            width=int(spec.get("width", 512)),
+                            source=spec["source"],
+                            teacher=spec.get("teacher"),
+                            views=spec.get("views"),
+                            train={**train_cfg, **({"seed": seed} if seeds else {})}
+                            if spec.get("train", True)
+                            else None,
+                            label=label,
+                            depth=depth,
+                            extra={
+                                **extra,
+                                **{k: spec[k] for k in ("strategy", "labels", "iters", "res") if k in spec},
+                            },
+                            seed=seed,
+                        )
                     )
-                )
     if not rows:
         raise PanoreconInputError(f"suite {path}: the grid is empty")
-    return Suite(path.stem, data.get("title", path.stem), rows, row_columns, data.get("paper", {}), path)
+    if reference and len(reference_labels) != 1:
+        said = ", ".join(f"{k} = {v!r}" for k, v in reference.items())
+        labels = list(dict.fromkeys(r.label for r in rows))
+        raise PanoreconInputError(
+            f"suite {path}: reference {{ {said} }} matches "
+            + (
+                f"{len(reference_labels)} rows ({', '.join(reference_labels)}); add keys to pick one"
+                if reference_labels
+                else f"no row; the rows are {', '.join(labels)}"
+            )
+        )
+    return Suite(
+        path.stem,
+        data.get("title", path.stem),
+        rows,
+        row_columns,
+        data.get("paper", {}),
+        path,
+        seeds or sorted({r.seed for r in rows}),
+        reference_labels[0] if reference else None,
+    )
 
 
 def resolve_names(suite: Suite) -> None:

@@ -34,7 +34,10 @@ TRAIN_CODE = POINTS_CODE + ("splat",)
 
 @dataclass(frozen=True)
 class Row:
-    """One run of an ablation grid. ``train`` holds TrainConfig overrides, or None for a row that trains nothing."""
+    """One run of an ablation grid. ``train`` holds TrainConfig overrides, or None for a row that trains nothing.
+    ``seed`` seeds the simulated teacher's errors and a random point source (the suite sets the training seed,
+    ``train["seed"]``, to the same value); it enters the points key only where it changes the stage
+    (``sources.uses_seed``), so rows that differ only in seed share a seed-independent point cloud."""
 
     scene: str
     width: int
@@ -45,6 +48,7 @@ class Row:
     label: str = ""
     extra: dict = field(default_factory=dict, compare=False)  # suite columns carried into results (not keyed)
     depth: tuple | None = None  # (path, metres per unit or None, "distance" | "z"): a real panorama's true depth
+    seed: int = 0
 
     def _scene_params(self) -> dict:
         return {"scene": self.scene, "width": self.width, **({"depth": list(self.depth)} if self.depth else {})}
@@ -57,6 +61,7 @@ class Row:
                 "source": self.source,
                 "teacher": teacher_fingerprint(self._teacher_for_points()),
                 "views": self.views,
+                "seed": self.seed if self._points_seeded() else None,
             },
             code=POINTS_CODE,
         )
@@ -64,7 +69,12 @@ class Row:
     def train_key(self) -> str:
         return stage_key(
             "train",
-            {**self._scene_params(), "teacher": teacher_fingerprint(self.teacher), "config": self.train_config_dict()},
+            {
+                **self._scene_params(),
+                "teacher": teacher_fingerprint(self.teacher),
+                "seed": self.seed,
+                "config": self.train_config_dict(),
+            },
             (self.points_key(),),
             TRAIN_CODE,
         )
@@ -73,6 +83,11 @@ class Row:
         from ..splat.trainer import TrainConfig
 
         return dataclasses.asdict(TrainConfig(**(self.train or {})))
+
+    def _points_seeded(self) -> bool:
+        from ..sources import uses_seed
+
+        return uses_seed(self.source, self.teacher)
 
     def _teacher_for_points(self) -> str | None:
         from ..sources import get_source
@@ -115,22 +130,23 @@ def load_row_scene(name: str, width: int, cache: StageCache, depth: tuple | None
     return scene_from_image(png, width, name=name, description=f"generated from {name!r} by {model}")
 
 
-def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = None):
+def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = None, seed: int = 0):
     """cameras -> list of z-like depth maps [h, w] float32 from the teacher, for the trainer's Pearson term (scale
     and shift do not matter to it; disparity is inverted), or None without a teacher. With ``cache_dir`` the maps
     of one call are kept in ``cache_dir/<key>.npz``, the key hashing the teacher's fingerprint, the teacher and
     geometry code, the scene's pixels and the cameras, so a network runs once per set of label views. The
-    teacher is loaded on the first call that is not cached."""
+    teacher is loaded on the first call that is not cached, with ``seed`` (``get_teacher``; it enters the key where
+    the teacher is seeded)."""
     if not teacher_spec:
         return None
-    from ..teachers import get_teacher, teacher_fingerprint
+    from ..teachers import get_teacher, seeded_teacher, teacher_fingerprint
 
     teacher = []
     fingerprint = teacher_fingerprint(teacher_spec)
 
     def compute(cameras):
         if not teacher:
-            teacher.append(get_teacher(teacher_spec))
+            teacher.append(get_teacher(teacher_spec, seed))
         with np.errstate(divide="ignore"):
             return [
                 (v.depth if v.kind != "disparity" else 1.0 / v.depth).astype(np.float32)
@@ -140,7 +156,8 @@ def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = N
     def depth_fn(cameras):
         if cache_dir is None:
             return compute(cameras)
-        h = hashlib.sha256(json.dumps([fingerprint, code_digest(("teachers", "geometry"))]).encode())
+        keyed = [fingerprint, code_digest(("teachers", "geometry"))] + ([seed] if seeded_teacher(teacher_spec) else [])
+        h = hashlib.sha256(json.dumps(keyed).encode())
         h.update(np.ascontiguousarray(scene.rgb).tobytes())
         for c in cameras:
             h.update(
@@ -196,7 +213,9 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
     scene = load_row_scene(row.scene, row.width, cache, row.depth)
     scene_s = time.perf_counter() - t
     try:
-        pc, report = run_source(scene, row.source, row._teacher_for_points(), row.views, fusion_config_for(device))
+        pc, report = run_source(
+            scene, row.source, row._teacher_for_points(), row.views, fusion_config_for(device), seed=row.seed
+        )
     except PanoreconInputError as e:  # a source that cannot run here says why ("n/a: needs a CUDA build ...")
         if not str(e).startswith("n/a"):
             raise
@@ -273,7 +292,7 @@ def _compute_train(
         cloud,
         TrainConfig(**(row.train or {})),
         cache.folder("train", key),
-        teacher_depth_fn(scene, row.teacher, cache.root / "teacher_views"),
+        teacher_depth_fn(scene, row.teacher, cache.root / "teacher_views", row.seed),
         progress=progress,
         inputs=inputs,
         device=device or "auto",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 
@@ -9,7 +10,7 @@ import numpy as np
 
 from ..io import PanoreconInputError, peak_rss_mb
 from ..metrics import depth_metrics, point_metrics
-from ..teachers import get_teacher
+from ..teachers import get_teacher, seeded_teacher
 from ..teachers.base import true_view_distance
 from .registry import get_source
 
@@ -53,6 +54,20 @@ def _finite_or_na(d: dict, reason: str) -> dict:
     return {k: (v if not (isinstance(v, float) and not math.isfinite(v)) else f"n/a: {reason}") for k, v in d.items()}
 
 
+def _takes_seed(fn) -> bool:
+    try:
+        return "seed" in inspect.signature(fn).parameters
+    except (TypeError, ValueError):  # a callable without a signature
+        return False
+
+
+def uses_seed(source_name: str, teacher_spec: str | None) -> bool:
+    """Whether ``run_source(..., seed=s)`` depends on ``s``: the source draws random numbers itself (its function
+    takes ``seed``), or it runs a teacher whose errors are seeded (``sim:``)."""
+    spec = get_source(source_name)
+    return _takes_seed(spec.fn) or (spec.uses_teacher and seeded_teacher(teacher_spec))
+
+
 def run_source(
     scene,
     source_name: str,
@@ -60,6 +75,7 @@ def run_source(
     views: int | None = None,
     fusion_config=None,
     view_size: int | None = None,
+    seed: int = 0,
 ):
     """-> (PointCloud, report dict). The report: source, teacher, scene, views, seconds per stage and total,
     peak_rss_mb (process peak so far), fusion solver report, depth and point metrics against the truth
@@ -67,13 +83,15 @@ def run_source(
     metrics) or 'n/a: <reason>', and the median per-view teacher AbsRel; for affine-invariant teachers also
     ``depth_inverse_affine`` (the fused map aligned by scale and shift in inverse distance). The fused ERP ray
     distance the metrics are computed from ([H, W] float32 metres, NaN unknown) is kept in
-    ``pc.meta["erp_distance"]`` when the source gives one."""
+    ``pc.meta["erp_distance"]`` when the source gives one. ``seed`` seeds the teacher (``get_teacher``) and a
+    source that takes a ``seed`` (random points); see :func:`uses_seed`."""
     t_total = time.perf_counter()
     spec = get_source(source_name)
     if spec.uses_teacher and not teacher_spec:
         raise PanoreconInputError(f"source {source_name!r} needs --teacher (see `panorecon teachers list`)")
-    teacher = get_teacher(teacher_spec) if spec.uses_teacher else None
-    pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size)
+    teacher = get_teacher(teacher_spec, seed) if spec.uses_teacher else None
+    extra = {"seed": seed} if _takes_seed(spec.fn) else {}
+    pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size, **extra)
     if len(pc) == 0:
         raise PanoreconInputError(
             f"source {source_name!r} with teacher {teacher_spec!r} gave no point on scene "

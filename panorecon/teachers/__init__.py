@@ -45,6 +45,12 @@ def get_teacher(spec: str, seed: int = 0) -> Teacher:
     )
 
 
+def seeded_teacher(spec: str | None) -> bool:
+    """Whether ``get_teacher(spec, seed)`` depends on ``seed`` (the simulated teachers' errors do; a model does
+    not)."""
+    return bool(spec) and spec.partition(":")[0] == "sim"
+
+
 def teacher_fingerprint(spec: str | None) -> str | None:
     """``spec``, and for teachers that load files (onnx:, file:, hf:, moge:) ``spec#<digest>`` of the files'
     relative names, sizes and modification times: a stage cache keyed by it recomputes when the model on disk
@@ -108,5 +114,6 @@ __all__ = [
     "PROFILES",
     "get_teacher",
     "list_teachers",
+    "seeded_teacher",
     "teacher_fingerprint",
 ]

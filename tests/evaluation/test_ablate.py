@@ -136,3 +136,87 @@ def test_a_source_that_cannot_run_here_reads_na_and_the_suite_goes_on(tmp_path):
     assert out.loc[0, "unavailable_note"].startswith("n/a: needs a CUDA build of pycolmap")
     assert out.loc[1, "points"] == 100_000
     assert "n/a: needs a CUDA build" in (tmp_path / "out" / "results.md").read_text()
+
+
+SEEDED = TINY.replace('rows = ["source"]', 'rows = ["source"]\nseeds = [0, 1]\nreference = { source = "fibonacci" }')
+
+
+@pytest.fixture(scope="module")
+def seeded_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("seeded")
+    (d / "tiny.toml").write_text(SEEDED)
+    suite = load_suite(d / "tiny.toml")
+    return d, suite, run_suite(suite, d / "out", jobs=2, progress=False)
+
+
+def test_a_suite_with_seeds_and_a_reference_runs_end_to_end(seeded_run):
+    d, suite, frame = seeded_run
+    csv = pd.read_csv(d / "out" / "results.csv")
+    assert sorted(zip(csv["source"], csv["seed"])) == [("fibonacci", 0), ("fibonacci", 1), ("random", 0), ("random", 1)]
+    assert list(csv.groupby("source")["reference"].all()) == [True, False]
+    fib = csv[csv["source"] == "fibonacci"]
+    assert fib["abs_rel"].nunique() == 2  # the teacher's noise differs between the seeds
+    md = (d / "out" / "results.md").read_text()
+    assert "| source | scenes × seeds |" in md and "| fibonacci | 1 × 2 |" in md and " ± " in md
+    assert "## Against the reference: fibonacci" in md
+    section = md.split("## Against the reference")[1]
+    row = next(line for line in section.splitlines() if line.startswith("| random | "))
+    # one scene: no interval across scenes; Chamfer of random points is far worse on both seeds
+    assert "n/a: one scene" in row
+    chamfer = md.split("Every metric, these scenes")[1]
+    assert "worse" in chamfer.split("| random |")[1].split("\n")[0]
+    page = (d / "out" / "report.html").read_text()
+    assert "Against the reference: fibonacci" in page and " ± " in page
+
+
+def test_from_csv_re_renders_the_same_tables_without_running(seeded_run, tmp_path):
+    from panorecon.cli import main
+
+    d, suite, frame = seeded_run
+    csv = d / "out" / "results.csv"
+    body = lambda p: (p / "results.md").read_text().split("## Averaged", 1)[1].split("## Per scene")[0]  # noqa: E731
+    # with the suite file: its title, row header and reference; the same tables as the run wrote
+    assert main(["ablate", str(d / "tiny.toml"), "--from-csv", str(csv), "--out", str(tmp_path / "s")]) == 0
+    assert (tmp_path / "s" / "results.md").read_text().startswith("# tiny")
+    assert body(tmp_path / "s") == body(d / "out")
+    # the CSV alone: its reference column names the reference; rows are headed "row"
+    assert main(["ablate", "--from-csv", str(csv), "--out", str(tmp_path / "re"), "--no-progress"]) == 0
+    assert body(tmp_path / "re") == body(d / "out").replace("| source |", "| row |")
+    assert not (tmp_path / "re" / "cache").exists()
+    for name in ("pareto.png", "psnr_vs_iterations.png", "report.html", "results.csv"):
+        assert (tmp_path / "re" / name).stat().st_size > 1000, name
+
+
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (lambda f: f.drop(columns=["scene"]), "no column scene"),
+        (lambda f: f[["label", "scene", "seed"]], "no metric column"),
+        (lambda f: f.assign(seed="x"), "seed 'x' is not an integer"),
+        (lambda f: f.assign(seed=0), "appears 2 times"),
+        (lambda f: f.assign(reference=True), "reference marks 2 rows"),
+    ],
+)
+def test_from_csv_refuses_a_bad_csv_with_one_line(seeded_run, tmp_path, capsys, edit, match):
+    from panorecon.cli import main
+
+    d, _, _ = seeded_run
+    bad = tmp_path / "bad.csv"
+    edit(pd.read_csv(d / "out" / "results.csv")).to_csv(bad, index=False)
+    assert main(["ablate", "--from-csv", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert match in err and err.count("\n") == 1 and not (tmp_path / "o").exists()
+
+
+def test_from_csv_never_overwrites_its_input(seeded_run, tmp_path, capsys):
+    from panorecon.cli import main
+
+    d, _, _ = seeded_run
+    copy = tmp_path / "results.csv"
+    copy.write_bytes((d / "out" / "results.csv").read_bytes())
+    assert main(["ablate", "--from-csv", str(copy), "--out", str(tmp_path)]) == 2
+    assert "is the input" in capsys.readouterr().err and copy.read_bytes() == (d / "out" / "results.csv").read_bytes()
+    assert not (tmp_path / "results.md").exists()
+    (tmp_path / "empty.csv").write_text("")
+    assert main(["ablate", "--from-csv", str(tmp_path / "empty.csv"), "--out", str(tmp_path / "o")]) == 2
+    assert "not a CSV table" in capsys.readouterr().err

@@ -185,3 +185,86 @@ def test_any_defaults_table_loads_or_is_one_clear_input_error(tmp_path_factory, 
 
         cfg = TrainConfig(**row.train)
         assert cfg.iters >= 1 and cfg.res >= 8 and cfg.labels >= 1
+
+
+SEEDED = "seeds = [0, 1, 2]\nreference = { source = 'fibonacci' }\n[defaults]\nteacher = 'sim:clean'\niters = 5\n"
+SEEDED += "[grid]\nscene = ['bedroom', 'beach']\nsource = ['fibonacci', 'random']\n"
+
+
+def test_seeds_run_every_row_per_seed_and_the_reference_names_one_row(tmp_path):
+    s = load_suite(write(tmp_path, SEEDED))
+    assert len(s.rows) == 2 * 2 * 3 and s.seeds == [0, 1, 2] and s.reference == "fibonacci"
+    for r in s.rows:
+        assert r.train == {"iters": 5, "seed": r.seed}  # the training seed is the row's seed
+    fib = {r.seed: r for r in s.rows if r.source == "fibonacci" and r.scene == "bedroom"}
+    assert len({fib[k].points_key() for k in fib}) == 3  # the simulated teacher's noise is seeded
+    assert len({fib[k].train_key() for k in fib}) == 3
+    unseeded = load_suite(write(tmp_path, SEEDED.replace("seeds = [0, 1, 2]\n", "")))
+    assert unseeded.seeds == [0] and len(unseeded.rows) == 4 and unseeded.rows[0].train == {"iters": 5}
+
+
+def test_a_stage_the_seed_does_not_change_is_shared_between_seeds():
+    from panorecon.pipeline import Row
+    from panorecon.sources import uses_seed
+
+    model = "onnx:/nonexistent/model.onnx"  # a network: its depth does not depend on the seed
+    rows = [Row("bedroom", 64, "fibonacci", model, train={"seed": k}, seed=k) for k in (0, 1)]
+    assert rows[0].points_key() == rows[1].points_key() and rows[0].train_key() != rows[1].train_key()
+    assert not uses_seed("fibonacci", model) and uses_seed("fibonacci", "sim:relative") and uses_seed("random", None)
+
+
+def test_the_seed_changes_the_teacher_noise_and_random_points():
+    import numpy as np
+
+    from panorecon.scenes import load_scene
+    from panorecon.sources import run_source
+
+    scene = load_scene("bedroom", 64)
+    c0, c0_again, c1 = (run_source(scene, "fibonacci", "sim:relative", views=6, seed=k)[0].xyz for k in (0, 0, 1))
+    assert np.array_equal(c0, c0_again)
+    assert not np.array_equal(c0, c1)
+    r0, r1 = (run_source(scene, "random", None, seed=k)[0].xyz for k in (0, 1))
+    assert not (r0 == r1).all()
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("seeds = []\n" + BASE, "seeds = \\[\\]: expected a non-empty list of integers"),
+        ("seeds = [0, 'a']\n" + BASE, "expected a non-empty list of integers"),
+        ("seeds = [0, -1]\n" + BASE, "seeds: -1 is out of range"),
+        ("seeds = [1, 1]\n" + BASE, "repeats a seed"),
+        ("seeds = 3\n" + BASE, "seeds must be a list"),
+        ("seeds = [0, 1]\n" + BASE + "seed = 4", "seeds = \\[...\\] or a seed setting, not both"),
+        ("reference = { sorce = 'fibonacci' }\n" + BASE, "unknown key 'sorce' in reference; did you mean 'source'"),
+        ("reference = { scene = 'bedroom' }\n" + BASE, "compared on every scene and seed"),
+        ("reference = { source = 'cube' }\n" + BASE, "matches no row; the rows are fibonacci"),
+        ("reference = { views = 0 }\n" + BASE, "reference views = 0: 0 is out of range"),
+        ("reference = 'fibonacci'\n" + BASE, "reference must be a table"),
+        ("reference = {}\n" + BASE, "reference is empty"),
+    ],
+)
+def test_bad_seeds_and_references_are_one_clear_error(tmp_path, text, match):
+    with pytest.raises(PanoreconInputError, match=match) as e:
+        load_suite(write(tmp_path, text))
+    assert "s.toml" in str(e.value)
+
+
+def test_a_reference_that_matches_several_rows_says_which(tmp_path):
+    text = "rows = ['source', 'views']\nreference = { source = 'fibonacci' }\n" + BASE + "[grid]\nviews = [8, 12]"
+    with pytest.raises(PanoreconInputError, match="matches 2 rows \\(fibonacci / 8, fibonacci / 12\\); add keys"):
+        load_suite(write(tmp_path, text))
+    ok = load_suite(write(tmp_path, text.replace("source = 'fibonacci' }", "source = 'fibonacci', views = 12 }")))
+    assert ok.reference == "fibonacci / 12"
+
+
+def test_every_shipped_table_suite_can_name_seeds_and_a_reference(tmp_path):
+    """The paper's tables (eval/suites/table*.toml) take seeds and a reference row by its label."""
+    from pathlib import Path
+
+    for p in sorted((Path(__file__).parents[2] / "eval" / "suites").glob("table*.toml")):
+        first = load_suite(p).rows[0].label
+        q = tmp_path / p.name
+        q.write_text(f"seeds = [0, 1]\nreference = {{ label = {first!r} }}\n" + p.read_text())
+        s = load_suite(q)
+        assert s.reference == first and s.seeds == [0, 1] and len(s.rows) == 2 * len(load_suite(p).rows), p.name
