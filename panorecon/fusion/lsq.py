@@ -602,7 +602,7 @@ def fuse_views(
         tu = time.perf_counter()
         with np.errstate(over="ignore"):
             distance = guided_upsample(
-                np.where(seen, xs, np.nan), guide, height, width, cfg.upsample_radius, cfg.upsample_eps, cfg.edge_log
+                np.where(seen, xs, np.nan), guide, height, width, cfg.upsample_radius, cfg.upsample_eps
             )
         seen = np.isfinite(distance) | np.isinf(distance)
         report["upsample"] = {

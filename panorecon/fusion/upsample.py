@@ -1,18 +1,18 @@
 """The fused log distance brought from the level the views resolve to the panorama's size, with depth edges
 following the panorama's own edges: a guided filter (He, Sun and Tang, 2013) fitted on the solve level and
-applied at full size (the fast guided filter, He and Sun, 2015).
+transferred at full size (in the spirit of the fast guided filter, He and Sun, 2015).
 
 On the solve level (h x w) the log distance p is fitted, in every (2r + 1)² window, by a linear function of the
-panorama's colour I averaged onto that level: p ≈ a·I + b, a = (Σ_I + eps·1)⁻¹ cov(I, p), b = mean(p) − a·mean(I)
-(Σ_I the 3 x 3 colour covariance of the window). a and b, averaged over the windows covering each pixel, are
-upsampled bilinearly and applied to the full-size colour: q = a↑·I + b↑. Where the four solve-level pixels
-around a full-size pixel span a depth edge (more than ``edge_log`` apart in log distance, the warp's threshold),
-q only chooses the side: the pixel takes the bilinear value of the taps on the side q is nearest
-(``snap_to_side``), so no point floats between a foreground and its background; elsewhere q is clipped to the
-taps' range. Where the colour has an edge inside a
-window that the depth shares, the fine depth steps where the colour steps (at the panorama's resolution, not the
-views'); where the colour varies and the depth does not, cov(I, p) ≈ 0 and q is the bilinear upsampling.
-``eps`` (colour variance, colour in [0, 1]) sets how strong a colour edge must be to be followed.
+panorama's colour I averaged onto that level (I_s): p ≈ a·I_s + b, a = (Σ + eps·1)⁻¹ cov(I_s, p) (Σ the 3 x 3
+colour covariance of the window), a averaged over the windows covering each pixel. At full size the colour's own
+detail, the part the solve level could not hold, is carried into the depth through a: q = p↑ + a↑·(I − I_s↑)
+(↑: bilinear). Where the colour has an edge inside a solve-level pixel that the depth shares, the fine depth
+steps where the colour steps (at the panorama's resolution, not the views'); where the colour is flat, or varies
+without the depth, q is the bilinear upsampling of p (the guided filter's own output, a·I + b, would also smooth
+p over the window there). ``eps`` (colour variance, colour in [0, 1]) sets how strong a colour edge must be to be
+followed. With ``edge_log``, q is also kept inside the range of the four solve-level pixels around it and, where
+these span a depth edge (more than ``edge_log`` apart), snapped to one side (``snap_to_side``); off by default:
+a steep but smooth depth (a floor at grazing angles) passes the same test and would be made blocky.
 
 ERP conventions: windows and interpolation wrap at the seam (longitude) and clamp at the poles. Pixels the solve
 did not see (NaN) take the median log distance inside the filter and come out NaN (a full-size pixel is unseen
@@ -36,9 +36,9 @@ def _box(x: np.ndarray, r: int) -> np.ndarray:
     return out[:, r : r + w] if r else out
 
 
-def guided_coefficients(p: np.ndarray, guide: np.ndarray, radius: int, eps: float) -> tuple[np.ndarray, np.ndarray]:
-    """The guided filter's window-averaged a [h, w, 3] and b [h, w] (float32) for log distance p [h, w] (finite)
-    against colour guide [h, w, 3] float in [0, 1]; solved per pixel in float64."""
+def guided_coefficients(p: np.ndarray, guide: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """The guided filter's window-averaged a [h, w, 3] (float32, log distance per colour unit) for log distance
+    p [h, w] (finite) against colour guide [h, w, 3] float in [0, 1]; solved per pixel in float64."""
     p64, g = p.astype(np.float64), guide.astype(np.float64)
     mean_i, mean_p = _box(g, radius), _box(p64, radius)
     cov_ip = _box(g * p64[..., None], radius) - mean_i * mean_p[..., None]
@@ -48,8 +48,7 @@ def guided_coefficients(p: np.ndarray, guide: np.ndarray, radius: int, eps: floa
             sigma[..., j, k] = sigma[..., k, j] = _box(g[..., j] * g[..., k], radius) - mean_i[..., j] * mean_i[..., k]
     sigma += eps * np.eye(3)
     a = np.linalg.solve(sigma, cov_ip[..., None])[..., 0]
-    b = mean_p - np.einsum("hwc,hwc->hw", a, mean_i)
-    return _box(a, radius).astype(np.float32), _box(b, radius).astype(np.float32)
+    return _box(a, radius).astype(np.float32)
 
 
 def _wrap_pad(x: np.ndarray) -> np.ndarray:
@@ -141,7 +140,7 @@ def guided_upsample(
     width: int,
     radius: int = 2,
     eps: float = 1e-4,
-    edge_log: float | None = 0.1,
+    edge_log: float | None = None,
     rows: int = 256,
 ) -> np.ndarray:
     """Log distance [h, w] (NaN = unseen) -> distance [height, width] float32 metres (NaN = unseen): guided by the
@@ -152,8 +151,8 @@ def guided_upsample(
     if guide is not None:
         scale = 255.0 if guide.dtype == np.uint8 else 1.0
         small = cv2.resize(guide, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / scale
-        a, b = guided_coefficients(p, small, radius, eps)
-        coeff = np.concatenate([a, b[..., None], seen[..., None]], axis=2)
+        a = guided_coefficients(p, small, radius, eps)
+        coeff = np.concatenate([a, small, p[..., None], seen[..., None]], axis=2)
     else:
         coeff = np.stack([p, seen], axis=2)
     out = np.empty((height, width), np.float32)
@@ -162,7 +161,7 @@ def guided_upsample(
         c = _bilinear_band(coeff, r0, r1, height, width)
         if guide is not None:
             g = guide[r0:r1].astype(np.float32) / scale
-            q = np.einsum("hwc,hwc->hw", c[..., :3], g) + c[..., 3]
+            q = c[..., 6] + np.einsum("hwc,hwc->hw", c[..., :3], g - c[..., 3:6])
         else:
             q = c[..., 0]
         if edge_log is not None:
@@ -180,7 +179,7 @@ def guided_upsample_reference(
     width: int,
     radius: int = 2,
     eps: float = 1e-4,
-    edge_log: float | None = 0.1,
+    edge_log: float | None = None,
 ) -> np.ndarray:
     """``guided_upsample`` in one piece with the float64 NumPy bilinear resampling (the reference)."""
     p, seen = _filled(log_coarse)
@@ -191,9 +190,12 @@ def guided_upsample_reference(
     else:
         scale = 255.0 if guide.dtype == np.uint8 else 1.0
         small = cv2.resize(guide, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / scale
-        a, b = guided_coefficients(p, small, radius, eps)
+        a = guided_coefficients(p, small, radius, eps)
         g = guide.astype(np.float64) / scale
-        q = (bilinear_upsample_reference(a, height, width) * g).sum(-1) + bilinear_upsample_reference(b, height, width)
+        detail = g - bilinear_upsample_reference(small, height, width)
+        q = bilinear_upsample_reference(p, height, width) + (
+            bilinear_upsample_reference(a, height, width) * detail
+        ).sum(-1)
     if edge_log is not None:
         q = _snap_reference(q, p.astype(np.float64), edge_log)
     return np.where(seen_up, np.exp(q), np.nan).astype(np.float32)
