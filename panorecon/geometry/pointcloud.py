@@ -302,8 +302,8 @@ def thin_on_sphere(pc: PointCloud, n_points: int) -> tuple[PointCloud, dict]:
     """At most ``n_points`` of ``pc`` spread evenly over the sphere of directions from the origin (the panorama
     centre), deterministically: the point nearest each site of a spherical Fibonacci lattice of K sites (paper
     eq. 13), K the largest found (up to 8 tries, each rescaled by the share of sites that found a point) for which
-    at most ``n_points`` sites find one. Only points in the ERP cell of their site (a grid of cells a quarter of a
-    site's area) are candidates, so a site over empty directions (sky) stays empty. Returns ``pc`` itself when it
+    at most ``n_points`` sites find one (each point is a candidate of the site nearest its cell of a fine ERP
+    grid), so a site over empty directions (sky) stays empty. Returns ``pc`` itself when it
     already has at most ``n_points``. -> (cloud, info: sites, points, spacing_deg = sqrt(4 pi / K) in degrees,
     points_per_sr = K / 4 pi over the directions the cloud covers)."""
     if not (isinstance(n_points, (int, np.integer)) and n_points >= 1):
@@ -335,28 +335,26 @@ def thin_on_sphere(pc: PointCloud, n_points: int) -> tuple[PointCloud, dict]:
 
 
 def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites: int) -> np.ndarray:
-    """Index of the point nearest (largest cosine) each of ``n_sites`` Fibonacci sites among the points in the
-    site's cell of an ERP grid of g x 2g cells, g = ceil(sqrt(pi n_sites)) (cells a quarter of a site's area at
-    the equator, smaller elsewhere); sites without such a point give none. [<= n_sites] int64."""
-    g = int(np.ceil(np.sqrt(np.pi * n_sites)))
+    """Index of the point nearest (largest cosine) each of ``n_sites`` Fibonacci sites among the points whose
+    cell of an ERP lookup grid (g x 2g cells, g = ceil(sqrt(pi n_sites / 2)): cells half a site's area at the
+    equator, smaller elsewhere) has that site as the site nearest its centre (a KD-tree over the sites, queried
+    once per cell, not per point); sites no point reaches give none. [<= n_sites] int64."""
+    from scipy.spatial import cKDTree
 
-    def cell(lo, la):
-        row = np.clip(((0.5 - la / np.pi) * g).astype(np.int64), 0, g - 1)
-        return row * 2 * g + np.mod(((lo / (2 * np.pi) + 0.5) * 2 * g).astype(np.int64), 2 * g)
-
+    g = int(np.ceil(np.sqrt(np.pi * n_sites / 2)))
     site_dirs = fibonacci_directions(n_sites)
-    site_of_cell = np.full(2 * g * g, -1, np.int64)
-    site_of_cell[cell(*direction_to_lonlat(site_dirs))] = np.arange(n_sites)
-    idx, site = [], []
+    rr, cc = np.meshgrid(np.arange(g, dtype=np.float64), np.arange(2 * g, dtype=np.float64), indexing="ij")
+    centres = lonlat_to_direction(*erp_pixel_to_lonlat(rr, cc, g, 2 * g)).reshape(-1, 3)
+    site_of_cell = cKDTree(site_dirs).query(centres, workers=-1)[1]
+    site, cos = np.empty(len(lon), np.int64), np.empty(len(lon), np.float64)
     for i in range(0, len(lon), PLY_CHUNK):
-        s = site_of_cell[cell(lon[i : i + PLY_CHUNK].astype(np.float64), lat[i : i + PLY_CHUNK].astype(np.float64))]
-        hit = np.flatnonzero(s >= 0)
-        idx.append(hit + i)
-        site.append(s[hit])
-    idx, site = np.concatenate(idx), np.concatenate(site)
-    d = xyz[idx].astype(np.float64)
-    cos = np.einsum("nk,nk->n", d, site_dirs[site]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
-    order = np.lexsort((-cos, site))  # by site, nearest first
+        lo, la = lon[i : i + PLY_CHUNK].astype(np.float64), lat[i : i + PLY_CHUNK].astype(np.float64)
+        row = np.clip(((0.5 - la / np.pi) * g).astype(np.int64), 0, g - 1)
+        col = np.mod(((lo / (2 * np.pi) + 0.5) * 2 * g).astype(np.int64), 2 * g)
+        s = site[i : i + PLY_CHUNK] = site_of_cell[row * 2 * g + col]
+        d = xyz[i : i + PLY_CHUNK].astype(np.float64)
+        cos[i : i + PLY_CHUNK] = np.einsum("nk,nk->n", d, site_dirs[s]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+    order = np.argsort(site * 4.0 + (1.0 - cos))  # by site, nearest first (1 - cos in [0, 2])
     first = np.ones(len(order), bool)
-    first[1:] = site[order][1:] != site[order][:-1]
-    return idx[order[first]]
+    first[1:] = site[order[1:]] != site[order[:-1]]
+    return order[first]
