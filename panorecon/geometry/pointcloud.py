@@ -291,11 +291,24 @@ def back_project_erp(
         xyz[at : at + m] = d * distance[r0 : r0 + rows][band][:, None]
         col[at : at + m] = rgb[r0 : r0 + rows][band]
         if vid is not None:
-            vid[at : at + m] = np.argmax(d @ np.asarray(forwards, np.float64).T, axis=1)
+            vid[at : at + m] = _nearest_axis(d, np.asarray(forwards, np.float64))
         at += m
     if rgb.dtype == np.uint8:
         col /= 255.0
     return xyz, col, vid
+
+
+def _nearest_axis(d: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """argmax over axes [V, 3] of d [N, 3] · axis, [N] int32 (ties: the first), by a running maximum over the
+    axes (elementwise, no N x V matrix)."""
+    x, y, z = (np.ascontiguousarray(d[:, i]) for i in range(3))
+    best = x * axes[0, 0] + y * axes[0, 1] + z * axes[0, 2]
+    out = np.zeros(len(d), np.int32)
+    for k in range(1, len(axes)):
+        dot = x * axes[k, 0] + y * axes[k, 1] + z * axes[k, 2]
+        better = dot > best
+        out[better], best[better] = k, dot[better]
+    return out
 
 
 def thin_on_sphere(pc: PointCloud, n_points: int) -> tuple[PointCloud, dict]:
