@@ -236,7 +236,13 @@ def _initial_cloud(args, scene, cloud_path, report_path):
 
     fusion = fusion_config_for(resolve_device(getattr(args, "device", "auto")))
     pc, report = run_source(
-        scene, args.source, args.teacher, args.views, fusion, view_size=getattr(args, "view_size", None)
+        scene,
+        args.source,
+        args.teacher,
+        args.views,
+        fusion,
+        view_size=getattr(args, "view_size", None),
+        max_points=getattr(args, "max_points", None),
     )
     pc.save_ply(cloud_path)
     if getattr(args, "distance_out", None):
@@ -255,6 +261,12 @@ def _initial_cloud(args, scene, cloud_path, report_path):
     )
     pts = report["points"]
     chamfer = f"{pts['chamfer']:.4f} m" if isinstance(pts.get("chamfer"), float) else pts.get("chamfer")
+    thin = report.get("thinning")
+    if thin and thin.get("thinned"):
+        print(
+            f"thinned to {thin['points']} points, {thin['spacing_deg']:.3f} deg apart "
+            f"({thin['points_per_sr']:.0f} per sr)"
+        )
     print(
         f"{scene.name} / {args.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}, "
         f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {cloud_path}"
@@ -493,6 +505,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="perspective view size in pixels (default: ERP width / 4, at most 512)",
     )
     pt.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
+    pt.add_argument(
+        "--max-points",
+        type=T.int_in(1, None, "point count"),
+        default=None,
+        help="thin the cloud evenly over the sphere (Fibonacci lattice) to at most this many points",
+    )
     pt.add_argument("--out", required=True, type=T.out_file, help="output .ply")
     pt.add_argument("--report", default=None, type=T.out_file, help="output report .json")
     pt.add_argument(

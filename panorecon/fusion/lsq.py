@@ -58,6 +58,7 @@ from .operators import (
     transpose_apply,
     vertical_pairs,
 )
+from .upsample import guided_upsample
 from .warp import ErpObservation, warp_to_erp
 
 
@@ -86,6 +87,9 @@ class FusionConfig:
     sampling: str = "linear"  # warp: "linear" (edge-aware bilinear, footprint-averaged) or "nearest" (warp.py)
     supersample: int | None = None  # sub-rays per ERP pixel side, finest level, "linear"; None: from the footprint
     edge_log: float = 0.1  # "linear" leaves out taps further than this (log distance) from the nearest one
+    resolution: str = "views"  # "views": solve up to the level the views resolve, then guided upsampling; "full"
+    upsample_radius: int = 2  # guided upsampling window radius, solve-level pixels (upsample.py)
+    upsample_eps: float = 1e-4  # guided upsampling regularisation, colour variance (colour in [0, 1])
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
@@ -103,6 +107,13 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.sampling={self.sampling!r}: expected 'linear' or 'nearest'")
         if not (self.supersample is None or (isinstance(self.supersample, int) and 1 <= self.supersample <= 8)):
             raise ValueError(f"FusionConfig.supersample={self.supersample!r}: expected None or an integer in [1, 8]")
+        if self.resolution not in ("views", "full"):
+            raise ValueError(f"FusionConfig.resolution={self.resolution!r}: expected 'views' or 'full'")
+        if not (isinstance(self.upsample_radius, int) and self.upsample_radius >= 0 and self.upsample_eps > 0):
+            raise ValueError(
+                f"FusionConfig upsample_radius={self.upsample_radius!r}, upsample_eps={self.upsample_eps!r}: "
+                "expected an integer >= 0 and a variance > 0"
+            )
         if not self.edge_log > 0:
             raise ValueError(f"FusionConfig.edge_log={self.edge_log!r}: expected > 0 (log distance)")
         if self.preconditioner not in ("amg", "jacobi"):
@@ -150,6 +161,25 @@ def pyramid_heights(height: int, levels: int | None, coarsest: int = 256) -> lis
             break
         hs.append(nxt)
     return hs[::-1]
+
+
+def view_supported_height(views: Sequence[ViewDepth], heights: Sequence[int]) -> tuple[int, dict]:
+    """The finest of ``heights`` (a pyramid, coarsest first) whose ERP pixel (pi / h radians) is no smaller than
+    the finest view's central pixel (1 / f radians, f its focal length in pixels), rounded to the nearest level:
+    h <= sqrt(2) pi f (a 512 px, 89 degree view: f = 259 px, h <= 1150 rows). Finer levels would solve for
+    detail no view holds. -> (height, why: the numbers the choice came from)."""
+    f = max(float(v.camera.K[0, 0]) for v in views)
+    limit = math.sqrt(2.0) * math.pi * f
+    fits = [h for h in heights if h <= limit]
+    h = fits[-1] if fits else heights[0]
+    return h, {
+        "view_focal_px": f,
+        "view_pixel_deg": math.degrees(1.0 / f),
+        "max_height": limit,
+        "erp_pixel_deg": 180.0 / h,
+        "reason": f"views resolve {math.degrees(1.0 / f):.4f} deg per pixel: ERP levels up to sqrt(2) pi f = "
+        f"{limit:.0f} rows are observed; {h} rows solved",
+    }
 
 
 @dataclass
@@ -456,12 +486,22 @@ def _upsample(x: np.ndarray, seen: np.ndarray, h: int, H: int) -> np.ndarray:
     return sample_erp(grid, _erp_rays(H), "linear").ravel()
 
 
-def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: FusionConfig | None = None) -> FusionResult:
+def fuse_views(
+    views: Sequence[ViewDepth],
+    height: int,
+    width: int,
+    config: FusionConfig | None = None,
+    guide: np.ndarray | None = None,
+) -> FusionResult:
     """Fuse per-view depth maps into one ERP ray-distance map (the §2.4 solve; see the module docstring).
 
     views: perspective depths at the panorama centre (camera positions are ignored: the panorama's rays
-    all start at the origin). Returns a ``FusionResult`` whose ``report`` lists per-level sizes,
-    CG iterations, relative residuals and seconds.
+    all start at the origin). With ``resolution='views'`` the pyramid stops at the level the views resolve
+    (``view_supported_height``) and the result is brought to height x width by ``upsample.guided_upsample``,
+    guided by ``guide`` (the panorama [height, width, 3], uint8 or float in [0, 1]; None: bilinear in log
+    distance); ``'full'`` solves every level up to height (the reference). Returns a ``FusionResult`` whose
+    ``report`` lists the levels solved and skipped (and why), per-level sizes, CG iterations, relative
+    residuals and seconds.
     """
     cfg = config or FusionConfig()
     cfg.check()
@@ -486,13 +526,26 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         "affine_alignment": affine_report,
         "connectivity": check_connectivity(views),
     }
+    if guide is not None and guide.shape[:2] != (height, width):
+        raise ValueError(f"fuse_views: guide {guide.shape}: expected the panorama's size {height}x{width}")
+    heights = pyramid_heights(height, cfg.levels)
+    if cfg.resolution == "views":
+        top, why = view_supported_height(views, heights)
+        report["resolution"] = {
+            **why,
+            "solved": [h for h in heights if h <= top],
+            "skipped": heights[heights.index(top) + 1 :],
+        }
+        heights = heights[: heights.index(top) + 1]
+    else:
+        report["resolution"] = {"solved": heights, "skipped": [], "reason": "resolution='full': every level"}
     x = None
     s = None
     prev_h = None
     prev_seen = None
-    for li, h in enumerate(pyramid_heights(height, cfg.levels)):
+    for li, h in enumerate(heights):
         tl = time.perf_counter()
-        level = _observe(views, dists, h, cfg.border_px, cfg, h == height)
+        level = _observe(views, dists, h, cfg.border_px, cfg, h == heights[-1])
         direct = li == 0 and h * 2 * h <= 40_000
         A, b0, data_w = _assemble(level, cfg, sparse=direct or cfg.preconditioner == "amg")
         if s is None:
@@ -504,8 +557,7 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
         torch_cg = cfg.cg_device is not None and not direct
         mixed = not (direct or torch_cg) and cfg.preconditioner == "jacobi" and cfg.cg_precision == "mixed"
         M = None if direct or torch_cg or mixed else _preconditioner(A, cfg)
-        finest = h == height
-        tol = cfg.tol if finest else max(cfg.tol, cfg.coarse_tol)
+        tol = cfg.tol if h == heights[-1] else max(cfg.tol, cfg.coarse_tol)
         for _ in range(max(1, cfg.scale_iters) if (h <= cfg.scale_max_height or li == 0) else 1):
             rhs = b0 + data_rhs
             if torch_cg:
@@ -535,15 +587,32 @@ def fuse_views(views: Sequence[ViewDepth], height: int, width: int, config: Fusi
             }
         )
         prev_h, prev_seen = h, level.seen
-    seen = prev_seen.reshape(height, width)
-    xs = x.reshape(height, width)
+    h = heights[-1]
+    seen = prev_seen.reshape(h, 2 * h)
+    xs = x.reshape(h, 2 * h)
     if not np.isfinite(xs[seen]).all():
         raise ValueError(
             "fuse_views: the solve produced non-finite log-distances; check the weights and the teacher's depth range"
         )
-    distance = np.full((height, width), np.nan, np.float32)
-    with np.errstate(over="ignore"):
-        distance[seen] = np.exp(xs[seen]).astype(np.float32)
+    if h == height:
+        distance = np.full((height, width), np.nan, np.float32)
+        with np.errstate(over="ignore"):
+            distance[seen] = np.exp(xs[seen]).astype(np.float32)
+    else:
+        tu = time.perf_counter()
+        with np.errstate(over="ignore"):
+            distance = guided_upsample(
+                np.where(seen, xs, np.nan), guide, height, width, cfg.upsample_radius, cfg.upsample_eps
+            )
+        seen = np.isfinite(distance) | np.isinf(distance)
+        report["upsample"] = {
+            "from": [2 * h, h],
+            "to": [width, height],
+            "method": "guided filter (panorama colour)" if guide is not None else "bilinear in log distance (no guide)",
+            "radius": cfg.upsample_radius,
+            "eps": cfg.upsample_eps,
+            "seconds": time.perf_counter() - tu,
+        }
     if not np.isfinite(distance[seen]).all():
         raise ValueError(
             "fuse_views: fused distances overflow float32 (log-distance beyond 88); check the teacher's depth range"

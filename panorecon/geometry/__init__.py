@@ -22,7 +22,7 @@ from .layouts import (
     latlong_directions,
     make_layout,
 )
-from .pointcloud import PointCloud, erp_point_cloud
+from .pointcloud import PointCloud, back_project_erp, erp_point_cloud, thin_on_sphere
 from .remap import erp_to_perspective, pad_erp, perspective_to_erp, sample_erp
 from .sphere import (
     direction_to_erp_pixel,
@@ -48,6 +48,8 @@ __all__ = [
     "erp_pixel_solid_angle",
     "erp_pixel_to_lonlat",
     "erp_point_cloud",
+    "back_project_erp",
+    "thin_on_sphere",
     "erp_to_perspective",
     "fibonacci_directions",
     "icosahedron_face_centres",

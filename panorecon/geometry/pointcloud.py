@@ -9,7 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .sphere import erp_directions
+from .layouts import fibonacci_directions
+from .sphere import direction_to_lonlat, erp_pixel_to_lonlat, lonlat_to_direction
+
+PLY_CHUNK = 1 << 20  # vertices per write: save_ply's extra memory is one chunk, whatever the cloud's size
 
 
 @dataclass
@@ -72,9 +75,7 @@ class PointCloud:
         cols += [(n, self.rgb[:, k]) for k, n in enumerate(("red", "green", "blue"))]
         if self.view_id is not None:
             cols.append(("view_id", self.view_id))
-        data = np.empty(len(self), dtype=[(n, "<i4" if n == "view_id" else "<f4") for n, _ in cols])
-        for n, v in cols:
-            data[n] = v
+        dtype = [(n, "<i4" if n == "view_id" else "<f4") for n, _ in cols]
         header = (
             "ply\nformat binary_little_endian 1.0\ncomment panorecon\n"
             f"element vertex {len(self)}\n"
@@ -85,9 +86,13 @@ class PointCloud:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")  # geometry sits below io/
         try:
-            with open(tmp, "wb") as f:
+            with open(tmp, "wb") as f:  # streamed: PLY_CHUNK vertices interleaved at a time, not a full copy
                 f.write(header.encode("ascii"))
-                f.write(data.tobytes())
+                for i in range(0, len(self), PLY_CHUNK):
+                    data = np.empty(min(PLY_CHUNK, len(self) - i), dtype=dtype)
+                    for n, v in cols:
+                        data[n] = v[i : i + len(data)]
+                    f.write(data.tobytes())
             os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)
@@ -257,13 +262,112 @@ def erp_point_cloud(
 
     Pixels with non-finite or non-positive distance, or outside ``keep``, give no point.
     """
-    H, W = distance.shape
     ok = np.isfinite(distance) & (distance > 0)
     if keep is not None:
         ok &= keep
-    d = erp_directions(H, W)[ok]
-    xyz = d * distance[ok][:, None] + np.asarray(origin, float)
-    col = rgb[ok].astype(np.float32)
+    xyz, col, _ = back_project_erp(distance, ok, rgb)
+    return PointCloud(xyz + np.asarray(origin, np.float32), col, normals=None, view_id=None)
+
+
+def back_project_erp(
+    distance: np.ndarray, keep: np.ndarray, rgb: np.ndarray, forwards: np.ndarray | None = None, rows: int = 256
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The pixels ``keep`` [H, W] of an ERP ray distance [H, W] (metres) as points, ``rows`` ERP rows at a time
+    (directions in float64 per band only): -> xyz [N, 3] float32, colour [N, 3] float32 in [0, 1] (``rgb``
+    [H, W, 3] uint8 or float), and with ``forwards`` [V, 3] the index of the axis closest to each point's ray
+    ([N] int32; else None). Row-major pixel order."""
+    H, W = distance.shape
+    n = int(keep.sum())
+    xyz, col = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    vid = None if forwards is None else np.empty(n, np.int32)
+    lon = erp_pixel_to_lonlat(np.zeros(1), np.arange(W, dtype=np.float64), H, W)[0]
+    at = 0
+    for r0 in range(0, H, rows):
+        band = keep[r0 : r0 + rows]
+        r, c = np.nonzero(band)
+        lat = erp_pixel_to_lonlat(r + float(r0), np.zeros(1), H, W)[1]
+        d = lonlat_to_direction(lon[c], lat)
+        m = len(r)
+        xyz[at : at + m] = d * distance[r0 : r0 + rows][band][:, None]
+        col[at : at + m] = rgb[r0 : r0 + rows][band]
+        if vid is not None:
+            vid[at : at + m] = _nearest_axis(d, np.asarray(forwards, np.float64))
+        at += m
     if rgb.dtype == np.uint8:
         col /= 255.0
-    return PointCloud(xyz, col, normals=None, view_id=None)
+    return xyz, col, vid
+
+
+def _nearest_axis(d: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """argmax over axes [V, 3] of d [N, 3] · axis, [N] int32 (ties: the first), by a running maximum over the
+    axes (elementwise, no N x V matrix)."""
+    x, y, z = (np.ascontiguousarray(d[:, i]) for i in range(3))
+    best = x * axes[0, 0] + y * axes[0, 1] + z * axes[0, 2]
+    out = np.zeros(len(d), np.int32)
+    for k in range(1, len(axes)):
+        dot = x * axes[k, 0] + y * axes[k, 1] + z * axes[k, 2]
+        better = dot > best
+        out[better], best[better] = k, dot[better]
+    return out
+
+
+def thin_on_sphere(pc: PointCloud, n_points: int) -> tuple[PointCloud, dict]:
+    """At most ``n_points`` of ``pc`` spread evenly over the sphere of directions from the origin (the panorama
+    centre), deterministically: the point nearest each site of a spherical Fibonacci lattice of K sites (paper
+    eq. 13), K the largest found (up to 8 tries, each rescaled by the share of sites that found a point) for which
+    at most ``n_points`` sites find one (each point is a candidate of the site nearest its cell of a fine ERP
+    grid), so a site over empty directions (sky) stays empty. Returns ``pc`` itself when it
+    already has at most ``n_points``. -> (cloud, info: sites, points, spacing_deg = sqrt(4 pi / K) in degrees,
+    points_per_sr = K / 4 pi over the directions the cloud covers)."""
+    if not (isinstance(n_points, (int, np.integer)) and n_points >= 1):
+        raise ValueError(f"thin_on_sphere: n_points={n_points!r}: expected an integer >= 1")
+    if len(pc) <= n_points:
+        return pc, {"sites": None, "points": len(pc), "thinned": False}
+    lon, lat = np.empty(len(pc), np.float32), np.empty(len(pc), np.float32)
+    for i in range(0, len(pc), PLY_CHUNK):
+        lon[i : i + PLY_CHUNK], lat[i : i + PLY_CHUNK] = direction_to_lonlat(
+            pc.xyz[i : i + PLY_CHUNK].astype(np.float64)
+        )
+    best, sites = None, n_points
+    for _ in range(8):
+        keep = _nearest_to_sites(pc.xyz, lon, lat, sites)
+        if len(keep) <= n_points and (best is None or len(keep) > len(best[0])):
+            best = (keep, sites)
+        if n_points * 0.99 <= len(keep) <= n_points:
+            break
+        sites = max(1, int(sites * n_points / max(len(keep), 1) * (0.995 if len(keep) > n_points else 1.0)))
+    keep, sites = best if best is not None else (keep[:0], sites)
+    info = {
+        "sites": sites,
+        "points": len(keep),
+        "thinned": True,
+        "spacing_deg": float(np.degrees(np.sqrt(4 * np.pi / sites))),
+        "points_per_sr": sites / (4 * np.pi),
+    }
+    return pc.subset(np.sort(keep)), info
+
+
+def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites: int) -> np.ndarray:
+    """Index of the point nearest (largest cosine) each of ``n_sites`` Fibonacci sites among the points whose
+    cell of an ERP lookup grid (g x 2g cells, g = ceil(sqrt(pi n_sites / 2)): cells half a site's area at the
+    equator, smaller elsewhere) has that site as the site nearest its centre (a KD-tree over the sites, queried
+    once per cell, not per point); sites no point reaches give none. [<= n_sites] int64."""
+    from scipy.spatial import cKDTree
+
+    g = int(np.ceil(np.sqrt(np.pi * n_sites / 2)))
+    site_dirs = fibonacci_directions(n_sites)
+    rr, cc = np.meshgrid(np.arange(g, dtype=np.float64), np.arange(2 * g, dtype=np.float64), indexing="ij")
+    centres = lonlat_to_direction(*erp_pixel_to_lonlat(rr, cc, g, 2 * g)).reshape(-1, 3)
+    site_of_cell = cKDTree(site_dirs).query(centres, workers=-1)[1]
+    site, cos = np.empty(len(lon), np.int64), np.empty(len(lon), np.float64)
+    for i in range(0, len(lon), PLY_CHUNK):
+        lo, la = lon[i : i + PLY_CHUNK].astype(np.float64), lat[i : i + PLY_CHUNK].astype(np.float64)
+        row = np.clip(((0.5 - la / np.pi) * g).astype(np.int64), 0, g - 1)
+        col = np.mod(((lo / (2 * np.pi) + 0.5) * 2 * g).astype(np.int64), 2 * g)
+        s = site[i : i + PLY_CHUNK] = site_of_cell[row * 2 * g + col]
+        d = xyz[i : i + PLY_CHUNK].astype(np.float64)
+        cos[i : i + PLY_CHUNK] = np.einsum("nk,nk->n", d, site_dirs[s]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+    order = np.argsort(site * 4.0 + (1.0 - cos))  # by site, nearest first (1 - cos in [0, 2])
+    first = np.ones(len(order), bool)
+    first[1:] = site[order[1:]] != site[order[:-1]]
+    return order[first]

@@ -18,9 +18,8 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
         raise ValueError(f"depth_metrics: prediction {pred.shape} and truth {truth.shape} differ in shape")
     if align not in ("median", "none", "inverse-affine"):
         raise ValueError(f"depth_metrics: align={align!r}; expected 'median', 'inverse-affine' or 'none'")
-    p = pred.astype(np.float64)
-    t = truth.astype(np.float64)
-    ok = np.isfinite(p) & np.isfinite(t) & (p > 0) & (t > 0)
+    with np.errstate(invalid="ignore"):  # the pixels compared are copied to float64, not the whole maps
+        ok = np.isfinite(pred) & np.isfinite(truth) & (pred > 0) & (truth > 0)
     if mask is not None:
         ok &= mask
     if not ok.any():
@@ -32,7 +31,7 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
             "scale": float("nan"),
             "align": align,
         }
-    p, t = p[ok], t[ok]
+    p, t = pred[ok].astype(np.float64), truth[ok].astype(np.float64)
     extra = {}
     if align == "inverse-affine":
         A = np.stack([1.0 / p, np.ones_like(p)], 1)
@@ -64,3 +63,41 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
         "align": align,
         **extra,
     }
+
+
+def depth_edge_mask(truth: np.ndarray, jump: float = 0.05, px: int = 2) -> np.ndarray:
+    """[H, W] bool: the pixels within ``px`` pixels (Chebyshev) of a true depth discontinuity, i.e. of a pair of
+    4-neighbours (wrapping at the ERP seam) with finite positive truth whose log distances differ by more than
+    ``jump``, or one of which has truth and the other none (a sky border)."""
+    import cv2
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lt = np.log(np.where(truth > 0, truth, np.nan).astype(np.float32))
+    ok = np.isfinite(lt)
+    right_l, right_ok = np.roll(lt, -1, axis=1), np.roll(ok, -1, axis=1)
+    with np.errstate(invalid="ignore"):
+        h_edge = (ok & right_ok & (np.abs(right_l - lt) > jump)) | (ok != right_ok)
+        v_edge = (ok[1:] & ok[:-1] & (np.abs(lt[1:] - lt[:-1]) > jump)) | (ok[1:] != ok[:-1])
+    edge = h_edge | np.roll(h_edge, 1, axis=1)
+    edge[1:] |= v_edge
+    edge[:-1] |= v_edge
+    W = truth.shape[1]
+    padded = np.concatenate([edge[:, W - px :], edge, edge[:, :px]], axis=1).astype(np.uint8)
+    grown = cv2.dilate(padded, np.ones((2 * px + 1, 2 * px + 1), np.uint8), borderType=cv2.BORDER_CONSTANT)
+    return grown[:, px : px + W].astype(bool)
+
+
+def edge_depth_metrics(
+    pred: np.ndarray, truth: np.ndarray, scale: float, mask: np.ndarray | None = None, jump: float = 0.05, px: int = 2
+) -> dict:
+    """AbsRel of ``pred`` x ``scale`` (the whole map's alignment, e.g. ``depth_metrics``' scale) on the pixels
+    within ``px`` of a true depth discontinuity (``depth_edge_mask``) only, where both are finite and positive
+    (and ``mask``): how sharp and well placed the depth edges are. -> edge_abs_rel, edge_pixels, jump, px."""
+    near = depth_edge_mask(truth, jump, px)
+    if mask is not None:
+        near &= mask
+    with np.errstate(invalid="ignore"):
+        near &= np.isfinite(pred) & np.isfinite(truth) & (pred > 0) & (truth > 0)
+    p, t = pred[near].astype(np.float64) * scale, truth[near].astype(np.float64)
+    rel = float(np.mean(np.abs(p - t) / t)) if len(t) else float("nan")
+    return {"edge_abs_rel": rel, "edge_pixels": int(len(t)), "jump": jump, "px": px}

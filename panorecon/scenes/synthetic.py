@@ -14,12 +14,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
-from ..geometry import PinholeCamera, erp_directions
+from ..geometry import PinholeCamera, erp_pixel_to_lonlat, lonlat_to_direction
 from . import procedural as P
 from .base import ErpRender, Scene, ViewRender
 from .catalog import DEFAULT_WIDTH, SCENE_SEED, SYNTHETIC_SCENES
 
 EYE_HEIGHT = 1.6  # metres above the floor / ground at the panorama centre
+ERP_BAND_PIXELS = 1 << 21  # rays cast at once by render_erp
 LIGHT = np.array([0.35, -0.25, 0.9]) / np.linalg.norm([0.35, -0.25, 0.9])
 
 
@@ -88,8 +89,17 @@ class SyntheticWorld:
     def render_erp(self, height: int, position: np.ndarray | None = None) -> ErpRender:
         """ERP of ``height`` x 2*height from ``position`` (default: the panorama centre, the origin)."""
         origin = np.zeros(3) if position is None else np.asarray(position, float)
-        rgb, dist, sky = self.cast(origin, erp_directions(height, 2 * height))
-        return ErpRender(_to_uint8(rgb), dist, sky)
+        rgb = np.empty((height, 2 * height, 3), np.uint8)
+        dist = np.empty((height, 2 * height), np.float32)
+        sky = np.empty((height, 2 * height), bool)
+        rows = max(1, ERP_BAND_PIXELS // (2 * height))  # cast band by band: float64 temporaries of one band only
+        cols = np.arange(2 * height, dtype=np.float64)
+        for r0 in range(0, height, rows):
+            rr, cc = np.meshgrid(np.arange(r0, min(r0 + rows, height), dtype=np.float64), cols, indexing="ij")
+            band = lonlat_to_direction(*erp_pixel_to_lonlat(rr, cc, height, 2 * height))  # erp_directions' rows
+            c, dist[r0 : r0 + rows], sky[r0 : r0 + rows] = self.cast(origin, band)
+            rgb[r0 : r0 + rows] = _to_uint8(c)
+        return ErpRender(rgb, dist, sky)
 
     def render_view(self, camera: PinholeCamera) -> ViewRender:
         rays = camera.world_rays()

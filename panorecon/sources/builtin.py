@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from ..fusion import FusionConfig, fuse_views
-from ..geometry import PointCloud, centred_camera, erp_directions, make_layout, sample_erp
+from ..geometry import PointCloud, back_project_erp, centred_camera, make_layout, sample_erp
 from .registry import register_source
 
 
@@ -19,12 +19,10 @@ def default_view_size(erp_width: int) -> int:
 
 
 def cloud_from_distance(scene, distance: np.ndarray, forwards: np.ndarray | None) -> PointCloud:
-    """Back-project a fused ERP distance; each point's view id is the view whose axis is closest to its ray."""
+    """Back-project a fused ERP distance (in row bands, ``back_project_erp``); each point's view id is the view
+    whose axis is closest to its ray."""
     keep = np.isfinite(distance) & (distance > 0) & ~scene.sky
-    dirs = erp_directions(scene.height, scene.width)[keep]
-    xyz = dirs * distance[keep][:, None]
-    rgb = scene.rgb[keep].astype(np.float32) / 255.0
-    view_id = None if forwards is None else np.argmax(dirs @ forwards.T, axis=1)
+    xyz, rgb, view_id = back_project_erp(distance, keep, scene.rgb, forwards)
     return PointCloud(xyz, rgb, None, view_id)
 
 
@@ -38,7 +36,7 @@ def _layout_source(layout_name: str, scene, teacher, views, fusion_config, view_
     vds = teacher.predict_views(scene, cams)
     seconds["teacher"] = time.perf_counter() - t
     t = time.perf_counter()
-    res = fuse_views(vds, scene.height, scene.width, fusion_config or FusionConfig())
+    res = fuse_views(vds, scene.height, scene.width, fusion_config or FusionConfig(), guide=scene.rgb)
     seconds["fusion"] = time.perf_counter() - t
     t = time.perf_counter()
     pc = cloud_from_distance(scene, res.distance, layout.directions)

@@ -8,8 +8,9 @@ import time
 
 import numpy as np
 
+from ..geometry import back_project_erp, thin_on_sphere
 from ..io import PanoreconInputError, peak_rss_mb
-from ..metrics import depth_metrics, point_metrics
+from ..metrics import depth_metrics, edge_depth_metrics, point_metrics
 from ..teachers import get_teacher, seeded_teacher
 from ..teachers.base import true_view_distance
 from .registry import get_source
@@ -50,6 +51,26 @@ def _per_view_abs_rel(scene, view_depths) -> float:
     return float(np.median(rels)) if rels else float("nan")
 
 
+POINT_METRIC_SAMPLE = 200_000  # points of each cloud the point metrics compare (point_metrics' default)
+
+
+def _truth_sample(scene, n: int, n_pred: int, seed: int = 0) -> np.ndarray:
+    """[<= n, 3] float32: the true points ``point_metrics(pred, scene.point_cloud().xyz, max_points=n, seed=seed)``
+    would subsample the whole true cloud to (the same draws: the prediction's ``n_pred`` first, then the truth's
+    valid pixels in row-major order), back-projected alone: the full-size true cloud is never built."""
+    flat = np.flatnonzero(scene.valid)
+    if len(flat) > n:
+        rng = np.random.default_rng(seed)
+        if n_pred > n:
+            rng.choice(n_pred, n, replace=False)  # point_metrics draws the prediction's subsample first
+        flat = flat[rng.choice(len(flat), n, replace=False)]
+    keep = np.zeros(scene.valid.shape, bool)
+    keep.ravel()[flat] = True
+    xyz = back_project_erp(scene.distance, keep, scene.rgb)[0]
+    order = np.argsort(np.argsort(flat))  # back_project_erp returns row-major order: back to the draw's order
+    return xyz[order]
+
+
 def _finite_or_na(d: dict, reason: str) -> dict:
     return {k: (v if not (isinstance(v, float) and not math.isfinite(v)) else f"n/a: {reason}") for k, v in d.items()}
 
@@ -76,6 +97,7 @@ def run_source(
     fusion_config=None,
     view_size: int | None = None,
     seed: int = 0,
+    max_points: int | None = None,
 ):
     """-> (PointCloud, report dict). The report: source, teacher, scene, views, seconds per stage and total,
     peak_rss_mb (process peak so far), fusion solver report, depth and point metrics against the truth
@@ -84,7 +106,9 @@ def run_source(
     ``depth_inverse_affine`` (the fused map aligned by scale and shift in inverse distance). The fused ERP ray
     distance the metrics are computed from ([H, W] float32 metres, NaN unknown) is kept in
     ``pc.meta["erp_distance"]`` when the source gives one. ``seed`` seeds the teacher (``get_teacher``) and a
-    source that takes a ``seed`` (random points); see :func:`uses_seed`."""
+    source that takes a ``seed`` (random points); see :func:`uses_seed`. ``max_points``: the cloud thinned evenly
+    over the sphere to at most that many points (``thin_on_sphere``; ``report["thinning"]`` gives the density)
+    before it is measured. The report's ``depth_edges`` is the fused map's AbsRel near true depth discontinuities."""
     t_total = time.perf_counter()
     spec = get_source(source_name)
     if spec.uses_teacher and not teacher_spec:
@@ -98,6 +122,10 @@ def run_source(
             f"{scene.name!r} (no valid fused depth; at small widths try a larger --width or "
             "--view-size)"
         )
+    if max_points is not None:
+        t = time.perf_counter()
+        pc, thinning = thin_on_sphere(pc, max_points)
+        seconds["thinning"] = time.perf_counter() - t
     t = time.perf_counter()
     report = {
         "source": source_name,
@@ -108,6 +136,8 @@ def run_source(
         "view_size": info.get("view_size"),
         "fov_deg": info.get("fov_deg"),
     }
+    if max_points is not None:
+        report["thinning"] = {"max_points": max_points, **thinning}
     for key in ("fusion", "panoramas", "baseline"):  # solver statistics; multi-view baselines' inputs and report
         if key in info:
             report[key] = info[key]
@@ -133,6 +163,9 @@ def run_source(
             dm = depth_metrics(distance, scene.distance, "none" if metric else "median", ~scene.sky)
             scale = dm["scale"] if math.isfinite(dm["scale"]) else 1.0
             report["depth"] = _finite_or_na(dm, "no pixel with both prediction and truth")
+            report["depth_edges"] = _finite_or_na(
+                edge_depth_metrics(distance, scene.distance, scale, ~scene.sky), "no pixel near a true depth edge"
+            )
             if any(v.affine for v in info.get("view_depths") or ()):
                 # affine views fix the fused map only up to a global scale and (nearly) a shift in inverse
                 # distance: measured as well after that alignment, the protocol of the per-view number
@@ -141,8 +174,10 @@ def run_source(
                 )
         else:
             report["depth"] = "n/a: the source gives no depth map"
-        truth = scene.point_cloud()
-        report["points"] = point_metrics(pc.xyz * scale, truth.xyz) if len(pc) else {"count": 0}
+        truth = _truth_sample(scene, POINT_METRIC_SAMPLE, len(pc))
+        report["points"] = (
+            point_metrics(pc.xyz * scale, truth, max_points=POINT_METRIC_SAMPLE) if len(pc) else {"count": 0}
+        )
         report["points"]["scale_applied"] = scale
         if info.get("view_depths"):
             report["teacher_per_view_abs_rel_median"] = _per_view_abs_rel(scene, info["view_depths"])

@@ -69,3 +69,19 @@ class TestPoints:
     def test_empty_cloud(self):
         with pytest.raises(ValueError, match="empty"):
             point_metrics(np.zeros((0, 3)), np.ones((3, 3)))
+
+
+def test_edge_mask_marks_pixels_near_a_depth_step_and_the_sky():
+    from panorecon.metrics.depth import depth_edge_mask, edge_depth_metrics
+
+    truth = np.full((20, 40), 2.0, np.float32)
+    truth[:, 20:] = 4.0  # a step between columns 19 and 20
+    truth[:3] = np.inf  # sky on top
+    m = depth_edge_mask(truth, px=2)
+    assert m[10, 17:23].all() and not m[10, 16] and not m[10, 23] and not m[10, 10]  # 2 px from 19 and 20
+    assert m[3:6, 10].all() and not m[6, 10]  # below the sky border
+    assert m[10, [0, 1, 38, 39]].all()  # the seam: column 39 next to column 0 (4 m vs 2 m)
+    pred = truth.copy()
+    pred[:, 19] = 3.0  # a flying column at the step
+    e = edge_depth_metrics(pred, truth, 1.0)
+    assert e["edge_abs_rel"] > 0 and edge_depth_metrics(truth, truth, 1.0)["edge_abs_rel"] == 0.0

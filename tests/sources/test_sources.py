@@ -116,3 +116,19 @@ def test_random_source_and_scene_without_truth(real_data):
     pc, rep = run_source(scene, "random", None)
     assert len(pc) == 100_000 and np.linalg.norm(pc.xyz, axis=1).max() <= 10.0
     assert rep["points"]["chamfer"].startswith("n/a") and rep["depth"].startswith("n/a")
+
+
+def test_truth_sample_is_point_metrics_own_subsample():
+    """run_source measures against the true points point_metrics would draw from the whole true cloud, without
+    building it: the metrics are identical."""
+    from panorecon.metrics import point_metrics
+    from panorecon.scenes import load_scene
+    from panorecon.sources.run import _truth_sample
+
+    scene = load_scene("bedroom", 256)
+    rng = np.random.default_rng(0)
+    for n_pred in (500, 40_000):
+        pred = rng.normal(size=(n_pred, 3)).astype(np.float32)
+        full = point_metrics(pred, scene.point_cloud().xyz, max_points=3000)
+        fast = point_metrics(pred, _truth_sample(scene, 3000, n_pred), max_points=3000)
+        assert full == fast

@@ -1,0 +1,71 @@
+"""Thinning on the sphere, banded back-projection and the streamed PLY writer (geometry/pointcloud.py)."""
+
+import numpy as np
+import pytest
+
+from panorecon.geometry import PointCloud, back_project_erp, erp_directions, thin_on_sphere
+from panorecon.geometry import pointcloud as pcm
+
+
+def _erp_cloud(h):
+    d = erp_directions(h, 2 * h).reshape(-1, 3)
+    r = 2.0 + np.sin(3 * d[:, 0])
+    return PointCloud(d * r[:, None], np.full((len(d), 3), 0.5))
+
+
+def test_thinning_keeps_at_most_n_points_evenly_over_the_sphere():
+    """An ERP cloud crowds the poles (pixels shrink with cos latitude): the thinned cloud has as many points per
+    equal-area band as any other band (within 10 %), and its points are further apart than a random subset's."""
+    pc = _erp_cloud(256)
+    out, info = thin_on_sphere(pc, 20_000)
+    assert 0.97 * 20_000 <= len(out) <= 20_000 and info["points"] == len(out) and info["thinned"]
+    assert info["spacing_deg"] == pytest.approx(np.degrees(np.sqrt(4 * np.pi / info["sites"])))
+    z = out.xyz[:, 2] / np.linalg.norm(out.xyz, axis=1)
+    counts = np.histogram(z, bins=10, range=(-1, 1))[0]  # equal z-intervals are equal areas
+    assert counts.min() > 0.9 * counts.max()
+    from scipy.spatial import cKDTree
+
+    def spacing(xyz):
+        u = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+        return np.percentile(cKDTree(u).query(u, k=2)[0][:, 1], 1)
+
+    rand = pc.xyz[np.random.default_rng(0).choice(len(pc), len(out), replace=False)]
+    assert spacing(out.xyz) > 3 * spacing(rand)
+    again, _ = thin_on_sphere(pc, 20_000)
+    assert np.array_equal(again.xyz, out.xyz)  # deterministic
+
+
+def test_thinning_a_partial_cloud_and_small_requests():
+    pc = _erp_cloud(64)
+    upper = pc.subset(pc.xyz[:, 2] > 0)  # half the sphere: the sites below find no point
+    out, info = thin_on_sphere(upper, 1000)
+    assert 970 <= len(out) <= 1000 and (out.xyz[:, 2] > 0).all()
+    assert thin_on_sphere(pc, len(pc))[0] is pc
+    assert len(thin_on_sphere(pc, 1)[0]) == 1
+    with pytest.raises(ValueError, match="n_points"):
+        thin_on_sphere(pc, 0)
+
+
+def test_banded_back_projection_equals_the_whole_map():
+    rng = np.random.default_rng(0)
+    h = 40
+    dist = rng.uniform(0.5, 9, (h, 2 * h)).astype(np.float32)
+    keep = rng.random((h, 2 * h)) > 0.3
+    rgb = rng.integers(0, 256, (h, 2 * h, 3)).astype(np.uint8)
+    fwd = rng.normal(size=(5, 3))
+    xyz, col, vid = back_project_erp(dist, keep, rgb, fwd, rows=7)
+    d = erp_directions(h, 2 * h)[keep]
+    np.testing.assert_allclose(xyz, d * dist[keep][:, None], rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(col, rgb[keep] / np.float32(255))
+    np.testing.assert_array_equal(vid, np.argmax(d @ fwd.T, axis=1))
+
+
+def test_streamed_ply_equals_the_cloud(tmp_path, monkeypatch):
+    monkeypatch.setattr(pcm, "PLY_CHUNK", 7)  # many chunks, the last one short
+    rng = np.random.default_rng(1)
+    pc = PointCloud(rng.normal(size=(50, 3)), rng.random((50, 3)), view_id=rng.integers(0, 9, 50))
+    pc.save_ply(tmp_path / "c.ply")
+    back = PointCloud.load_ply(tmp_path / "c.ply")
+    np.testing.assert_array_equal(back.xyz, pc.xyz)
+    np.testing.assert_array_equal(back.rgb, pc.rgb)
+    np.testing.assert_array_equal(back.view_id, pc.view_id)
