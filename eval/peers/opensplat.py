@@ -61,6 +61,7 @@ def run_opensplat(binary: str, command: str, iters: int, log_path: Path) -> dict
     ):
         for line in p.stdout:
             log.write(line)
+            log.flush()
             if line.startswith("Step "):
                 steps.append((int(line.split()[1].rstrip(":")), time.perf_counter()))
     return {
