@@ -11,12 +11,25 @@ from the ERP, written as images/view_00000.png (or .jpg).
   as nerfstudio expects; the world frame is the scene's, already +z up) and sparse_pc.ply (x, y, z,
   uchar red/green/blue) named by its ``ply_file_path``.
 
+* ``sparse_pc.ply`` / points: float32 positions (``PointCloud.save_ply``, uchar colours: the layout OpenSplat's
+  reader assumes; it misreads doubles silently).
+
+Scene size. Every consumer sizes the scene by its cameras' spread (``consumer_scales``: OpenSplat, nerfstudio,
+gsplat's simple_trainer, the original 3DGS), and the label views share one centre, where their colours are true:
+a spread of 0 gives OpenSplat NaN Gaussians, nerfstudio a ZeroDivisionError and gsplat/3DGS frozen means and a
+scene pruned to nothing. So when the label views span no baseline the export adds two *scale anchors*
+(``scale_anchors``): views on the vertical axis at about the cloud's extent (its 90th-percentile distance, the
+extent panorecon's own trainer scales its learning rate by), beyond every point and looking away from them, with
+black images. They see no point, so they give no Gaussian a gradient, but their baseline makes every consumer's
+scene size the cloud's extent. ``export.json`` and ``README.txt`` give each consumer's scale and its command.
+
 Everything is written into a temporary folder beside ``out_dir`` and renamed into place at the end.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -24,12 +37,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import PinholeCamera, PointCloud
-from .io import PanoreconInputError, write_image
+from .geometry import PinholeCamera, PointCloud, centred_camera
+from .io import PanoreconInputError, write_image, write_json
+
+log = logging.getLogger(__name__)
 
 FORMATS = ("colmap", "nerfstudio")
 IMAGE_FORMATS = ("png", "jpg")
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])  # camera axes (x right, y down, z fwd) -> (x right, y up, z back)
+EXTENT_PERCENTILE = 90.0  # the cloud's extent: this percentile of its points' distances from the label centre
+ANCHOR_MARGIN = 0.05  # anchors sit at least this fraction of the extent beyond the cloud's highest / lowest point
+NO_BASELINE = 1e-3  # label views spread by less than this fraction of the extent span "no baseline"
 
 
 def c2w_opengl(viewmat: np.ndarray) -> np.ndarray:
@@ -40,6 +58,96 @@ def c2w_opengl(viewmat: np.ndarray) -> np.ndarray:
 def viewmat_from_c2w_opengl(c2w: np.ndarray) -> np.ndarray:
     """Inverse of ``c2w_opengl``: camera-to-world 4x4 in OpenGL axes -> world-to-camera 4x4 in OpenCV axes."""
     return np.linalg.inv(np.asarray(c2w, float) @ OPENCV_TO_OPENGL)
+
+
+def cloud_extent(cloud: PointCloud, centre: np.ndarray) -> float:
+    """The cloud's size (metres or the cloud's units): the ``EXTENT_PERCENTILE``-th percentile of its points'
+    distances from ``centre`` [3] -> float > 0 (float64)."""
+    if len(cloud) == 0:
+        raise PanoreconInputError("export: the point cloud is empty (expected at least one point)")
+    extent = float(np.percentile(np.linalg.norm(cloud.xyz.astype(np.float64) - centre, axis=1), EXTENT_PERCENTILE))
+    if not (np.isfinite(extent) and extent > 0):
+        raise PanoreconInputError(f"export: the point cloud's extent is {extent!r} (every point at the view centre)")
+    return extent
+
+
+def scale_anchors(cloud: PointCloud, centre: np.ndarray, extent: float, size: int, fov_deg: float):
+    """Two views at ``centre`` + (0, 0, +a) looking up and ``centre`` - (0, 0, b) looking down, a and b the
+    ``extent`` or, where the cloud reaches further, its highest / lowest point plus ``ANCHOR_MARGIN`` x extent:
+    every point is behind them, so their true image is empty -> ([PinholeCamera] x 2, ["anchor_up",
+    "anchor_down"])."""
+    z = cloud.xyz[:, 2].astype(np.float64) - centre[2]
+    margin = ANCHOR_MARGIN * extent
+    up, down = max(extent, float(z.max()) + margin), max(extent, float(-z.min()) + margin)
+    cams = [
+        centred_camera(np.array([0.0, 0.0, 1.0]), size, fov_deg, centre + [0.0, 0.0, up]),
+        centred_camera(np.array([0.0, 0.0, -1.0]), size, fov_deg, centre - [0.0, 0.0, down]),
+    ]
+    return cams, ["anchor_up", "anchor_down"]
+
+
+def consumer_scales(c2w: np.ndarray) -> dict[str, float]:
+    """The scene size each consumer derives from camera-to-world poses ``c2w`` [N, 4, 4] (OpenCV axes), float64,
+    inf or NaN where the layout is degenerate. Each rule follows the consumer's code:
+
+    * ``opensplat``: the factor its world is multiplied by, 1 / max |C - mean C| over all coordinates
+      (pierotofy/OpenSplat tensor_math.cpp ``autoScaleAndCenterPoses``, called by nerfstudio.cpp and colmap.cpp).
+    * ``nerfstudio``: ``scale_factor`` = 1 / max |t| after ``auto_orient_and_center_poses`` (method "up", centre
+      "poses"), the default ``auto_scale_poses`` of nerfstudio_dataparser.py and colmap_dataparser.py.
+    * ``gsplat``: ``scene_scale`` = 1.1 x max |C - mean C| (examples/datasets/colmap.py ``Parser``, x 1.1 in
+      simple_trainer.py ``Runner``) with ``--no-normalize-world-space``; ``gsplat-normalized``: the factor its
+      default normalisation applies, 1 / median |C - focus| (examples/datasets/normalize.py
+      ``similarity_from_cameras``), infinite whenever most cameras share one centre.
+    * ``3dgs``: ``cameras_extent`` = 1.1 x max |C - mean C| (graphdeco-inria/gaussian-splatting
+      scene/dataset_readers.py ``getNerfppNorm``), which scales its means learning rate and densification.
+    """
+    c2w = np.asarray(c2w, np.float64)
+    C = c2w[:, :3, 3]
+    spread = np.linalg.norm(C - C.mean(0), axis=1).max()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        opensplat = 1.0 / np.abs(C - C.mean(0)).max()
+        up = -c2w[:, :3, 1].mean(0)  # OpenGL camera y (up) = -OpenCV y
+        R = _rotation_between(up / np.linalg.norm(up), np.array([0.0, 0.0, 1.0]))
+        nerfstudio = 1.0 / np.abs((C - C.mean(0)) @ R.T).max()
+        fwd = c2w[:, :3, 2]
+        nearest = C + ((fwd * -C).sum(-1))[:, None] * fwd  # gsplat's "focus" centre, before its z-up rotation
+        t = C - np.median(nearest, axis=0)
+        normalized = 1.0 / np.median(np.linalg.norm(t, axis=1))
+    return {
+        "opensplat": float(opensplat),
+        "nerfstudio": float(nerfstudio),
+        "gsplat": float(1.1 * spread),
+        "gsplat-normalized": float(normalized),
+        "3dgs": float(1.1 * spread),
+    }
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation [3, 3] taking unit ``a`` to unit ``b`` (Rodrigues; nerfstudio's ``rotation_matrix_between``)."""
+    v = np.cross(a, b)
+    if np.abs(v).sum() < 1e-6:
+        v = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 1e-6 else [0, 1.0, 0])
+    v = v / np.linalg.norm(v)
+    S = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    theta = np.arccos(np.clip(a @ b, -1, 1))
+    return np.eye(3) + np.sin(theta) * S + (1 - np.cos(theta)) * S @ S
+
+
+def consumer_commands(out: Path, fmt: str) -> dict[str, str]:
+    """Per consumer, the command that trains on export ``out`` in format ``fmt`` (its own documented flags)."""
+    d = str(out)
+    cmds = {
+        "opensplat": f"opensplat {d} --keep-crs -o {d}/opensplat.ply",
+        "nerfstudio": f"ns-train splatfacto --data {d}"
+        + (" colmap --colmap-path sparse/0" if fmt == "colmap" else " nerfstudio-data"),
+    }
+    if fmt == "colmap":  # gsplat's simple_trainer and the original 3DGS read COLMAP models only
+        cmds["gsplat"] = (
+            f"python examples/simple_trainer.py default --data-dir {d} --data-factor 1 "
+            f"--no-normalize-world-space --result-dir {d}/gsplat"
+        )
+        cmds["3dgs"] = f"python train.py -s {d} -m {d}/3dgs"
+    return cmds
 
 
 def _write_colmap(root: Path, cameras: list[PinholeCamera], names: list[str], cloud: PointCloud) -> None:
@@ -62,8 +170,6 @@ def _write_colmap(root: Path, cameras: list[PinholeCamera], names: list[str], cl
 
 
 def _write_nerfstudio(root: Path, cameras: list[PinholeCamera], names: list[str], cloud: PointCloud) -> None:
-    import open3d as o3d
-
     K, w, h = cameras[0].K, cameras[0].width, cameras[0].height
     meta = {
         "camera_model": "OPENCV",
@@ -84,10 +190,7 @@ def _write_nerfstudio(root: Path, cameras: list[PinholeCamera], names: list[str]
         ],
     }
     (root / "transforms.json").write_text(json.dumps(meta, indent=2))
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.xyz.astype(np.float64)))
-    pc.colors = o3d.utility.Vector3dVector(np.clip(cloud.rgb, 0, 1).astype(np.float64))  # written as uchar
-    if not o3d.io.write_point_cloud(str(root / "sparse_pc.ply"), pc, write_ascii=False):
-        raise OSError(f"could not write {root / 'sparse_pc.ply'}")
+    PointCloud(cloud.xyz, cloud.rgb).save_ply(root / "sparse_pc.ply", uchar_rgb=True)  # x, y, z, red, green, blue
 
 
 def export_scene(
@@ -100,9 +203,13 @@ def export_scene(
     fov_deg: float = 60.0,
     image_format: str = "png",
     overwrite: bool = False,
+    about: dict | None = None,
 ) -> Path:
     """Write ``views`` pseudo-label views (``view_size``² pixels, ``fov_deg`` square FOV, at the panorama
-    centre) and ``cloud`` (metres, scene frame) in ``fmt`` ("colmap" | "nerfstudio") to ``out_dir`` -> out_dir.
+    centre), two scale anchors when those views span no baseline (module docstring) and ``cloud`` (metres, scene
+    frame) in ``fmt`` ("colmap" | "nerfstudio") to ``out_dir``, with export.json (views, anchors, extent, each
+    consumer's scale and command, warnings; ``about``, e.g. scene and source names, copied in) and README.txt
+    -> out_dir.
 
     An existing non-empty ``out_dir`` is replaced only with ``overwrite``.
     """
@@ -117,13 +224,57 @@ def export_scene(
         raise PanoreconInputError(f"{out} exists and is not empty (pass overwrite=True / --overwrite to replace it)")
     labels = make_pseudo_labels(scene, views, view_size, fov_deg)
     cameras = [lv.camera for lv in labels]
+    images = [np.clip(np.round(lv.rgb * 255), 0, 255).astype(np.uint8) for lv in labels]
     names = [f"images/view_{i:05d}.{image_format}" for i in range(len(labels))]
+    centres = np.stack([c.position for c in cameras])
+    centre = centres.mean(0)
+    extent = cloud_extent(cloud, centre)
+    baseline = float(np.linalg.norm(centres - centre, axis=1).max())
+    anchors, warnings = [], []
+    if baseline < NO_BASELINE * extent:
+        anchor_cams, anchor_names = scale_anchors(cloud, centre, extent, view_size, fov_deg)
+        anchors = [f"images/{n}.{image_format}" for n in anchor_names]
+        cameras, names = cameras + anchor_cams, names + anchors
+        images += [np.zeros((view_size, view_size, 3), np.uint8)] * len(anchor_cams)
+        heights = ", ".join(f"{c.position[2] - centre[2]:+.3f}" for c in anchor_cams)
+        warnings.append(
+            f"the {len(labels)} label views share one centre (baseline {baseline:.2g} against a cloud extent of "
+            f"{extent:.3f}): OpenSplat, nerfstudio, gsplat and 3DGS size the scene by the cameras' spread, which "
+            "would be 0 (OpenSplat: scale 1/0 and NaN Gaussians; nerfstudio: ZeroDivisionError; gsplat, 3DGS: "
+            "frozen means and every Gaussian pruned as too big). Added 2 scale-anchor views at z = "
+            f"{heights} from the centre, black, looking away from every point: each consumer's scene size is "
+            "now about the cloud's extent (README.txt)"
+        )
+    c2w = np.stack([np.linalg.inv(c.viewmat) for c in cameras])
+    scales = consumer_scales(c2w)
+    commands = consumer_commands(out.resolve(), fmt)
+    bad = [k for k in commands if not (np.isfinite(scales[k]) and scales[k] > 0)]
+    if bad:  # cannot happen with the anchors; guards a future layout
+        raise PanoreconInputError(f"export: degenerate scene for {', '.join(bad)}: scales {scales}")
+    for w in warnings:
+        log.warning(w)
+    report = {
+        **(about or {}),
+        "format": fmt,
+        "label_views": names[: len(labels)],
+        "label_centre": centre,
+        "label_baseline": baseline,
+        "cloud_points": len(cloud),
+        "cloud_extent": extent,
+        "extent_rule": f"{EXTENT_PERCENTILE:g}th percentile of the points' distances from the label centre",
+        "anchors": {n: c.position for n, c in zip(anchors, cameras[len(labels) :])},
+        "consumer_scales": {k: scales[k] for k in ("opensplat", "nerfstudio", "gsplat", "3dgs") if k in commands},
+        "commands": commands,
+        "warnings": warnings,
+    }
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        for lv, name in zip(labels, names):
-            write_image(tmp / name, np.clip(np.round(lv.rgb * 255), 0, 255).astype(np.uint8))
+        for img, name in zip(images, names):
+            write_image(tmp / name, img)
         (_write_colmap if fmt == "colmap" else _write_nerfstudio)(tmp, cameras, names, cloud)
+        write_json(tmp / "export.json", report)
+        (tmp / "README.txt").write_text(_readme(report))
         if out.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
             os.replace(out, old / out.name)
@@ -135,6 +286,44 @@ def export_scene(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+SCALE_MEANING = {
+    "opensplat": "multiplies the world (cameras to [-1, 1]); its thresholds (densify-size-thresh 0.01, cull 0.5) "
+    "are in those units",
+    "nerfstudio": "scale_factor multiplying the world (auto_scale_poses); splatfacto's thresholds are in those units",
+    "gsplat": "scene_scale: means learning rate and grow/prune size thresholds are multiples of it "
+    "(needs --no-normalize-world-space: its default normalisation divides by the median camera distance, 0 here)",
+    "3dgs": "cameras_extent (getNerfppNorm): means learning rate, percent_dense and the 'too big' prune scale with "
+    "it (train cameras only: with --eval, llffhold may hold out one anchor; the other keeps it finite)",
+}
+
+
+def _readme(report: dict) -> str:
+    """README.txt of an export: what is in it, the scene size each consumer derives, the commands."""
+    lines = [
+        f"panorecon export ({report['format']}): {len(report['label_views'])} pseudo-label views from one panorama "
+        f"centre and a {report['cloud_points']}-point initial cloud (float32 positions), scene frame (+z up).",
+        f"Cloud extent {report['cloud_extent']:.4f} ({report['extent_rule']}).",
+        "",
+    ]
+    if report["anchors"]:
+        lines += [
+            "Scale anchors: " + ", ".join(report["anchors"]),
+            "  Every consumer below sizes the scene by its cameras' spread; the label views share one centre",
+            "  (their colours are only true there), so a spread of 0 would break them all. The two anchors sit on",
+            "  the vertical axis at about the cloud's extent, beyond every point and looking away from it: their",
+            "  true image is empty (black), they give no Gaussian a gradient, and their baseline makes each",
+            "  consumer's scene size the cloud's extent. Leave them in; drop them only with views of your own",
+            "  that span a baseline.",
+            "",
+        ]
+    lines.append("Scene size each consumer derives from these cameras (its own rule; tests/test_export.py):")
+    for k, v in report["consumer_scales"].items():
+        lines.append(f"  {k:<10} {v:.4f}  ({SCALE_MEANING[k]})")
+    lines += ["", "Commands that train on this export (run from the trainer's checkout where it is a script):"]
+    lines += [f"  {k:<10} {c}" for k, c in report["commands"].items()]
+    return "\n".join(lines) + "\n"
 
 
 def add_export_parser(subparsers) -> None:
@@ -169,17 +358,22 @@ def add_export_parser(subparsers) -> None:
 
 
 def run_export(args) -> int:
-    """Build the cloud with ``run_source`` and export it with the labels; print one summary line -> 0."""
+    """Build the cloud with ``run_source`` and export it with the labels (warnings go to the log, stderr);
+    print a summary and each consumer's command -> 0."""
     from .scenes import scene_from_args
     from .sources import run_source
 
     scene = scene_from_args(args)
     cloud, report = run_source(scene, args.source, args.teacher, args.views)
+    about = {"scene": scene.name, "source": args.source, "teacher": report.get("teacher")}
     out = export_scene(
-        scene, cloud, args.labels, args.format, args.out, args.res, args.fov, args.image_format, args.overwrite
+        scene, cloud, args.labels, args.format, args.out, args.res, args.fov, args.image_format, args.overwrite, about
     )
+    meta = json.loads((out / "export.json").read_text())
     print(
         f"{scene.name} / {args.source}: {len(cloud)} points, {args.labels} views {args.res}x{args.res} "
-        f"({args.format}) -> {out}"
+        f"+ {len(meta['anchors'])} scale anchors ({args.format}) -> {out}"
     )
+    for k, c in meta["commands"].items():
+        print(f"  {k} (scene scale {meta['consumer_scales'][k]:.4f}): {c}")
     return 0

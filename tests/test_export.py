@@ -1,13 +1,16 @@
-"""Export to COLMAP and nerfstudio: the files read back with the same cameras, poses and points."""
+"""Export to COLMAP and nerfstudio: the files read back with the same cameras, poses and points; float32
+positions; and every consumer's scene-scale rule, re-implemented here from its own code, finite on the export."""
 
 from __future__ import annotations
 
 import argparse
 import json
 
+import imageio.v3 as iio
 import numpy as np
 import pycolmap
 import pytest
+import torch
 
 from panorecon.export import add_export_parser, export_scene, viewmat_from_c2w_opengl
 from panorecon.io import PanoreconInputError
@@ -32,11 +35,13 @@ def test_colmap_round_trip(scene, cloud, tmp_path):
     out = export_scene(scene, cloud, VIEWS, "colmap", tmp_path / "c", view_size=SIZE)
     rec = pycolmap.Reconstruction(out / "sparse" / "0")
     cams = [lv.camera for lv in make_pseudo_labels(scene, VIEWS, SIZE)]
-    assert rec.num_cameras() == 1 and rec.num_images() == VIEWS and rec.num_points3D() == len(cloud)
+    assert rec.num_cameras() == 1 and rec.num_images() == VIEWS + 2 and rec.num_points3D() == len(cloud)
     cam = rec.cameras[1]
     assert cam.model_name == "PINHOLE" and (cam.width, cam.height) == (SIZE, SIZE)
     assert np.allclose(cam.calibration_matrix(), cams[0].K)
     for im in rec.images.values():
+        if im.name.startswith("anchor_"):
+            continue
         i = int(im.name.removeprefix("view_").split(".")[0])
         assert (out / "images" / im.name).is_file()
         assert np.allclose(im.cam_from_world().matrix(), cams[i].viewmat[:3], atol=1e-9)
@@ -51,7 +56,7 @@ def test_nerfstudio_round_trip(scene, cloud, tmp_path):
     meta = json.loads((out / "transforms.json").read_text())
     cams = [lv.camera for lv in make_pseudo_labels(scene, VIEWS, SIZE)]
     assert (meta["w"], meta["h"], meta["fl_x"], meta["cx"]) == (SIZE, SIZE, cams[0].K[0, 0], cams[0].K[0, 2])
-    assert len(meta["frames"]) == VIEWS
+    assert len(meta["frames"]) == VIEWS + 2  # + the two scale anchors, last
     for f, cam in zip(meta["frames"], cams):
         c2w = np.array(f["transform_matrix"])
         assert (out / f["file_path"]).is_file()
@@ -96,5 +101,138 @@ def test_export_command(tmp_path, capsys):
         ]
     )
     assert args.fn(args) == 0
-    assert "100000 points" in capsys.readouterr().out
-    assert len(json.loads((tmp_path / "e" / "transforms.json").read_text())["frames"]) == 4
+    out = capsys.readouterr().out
+    assert "100000 points" in out and "2 scale anchors" in out
+    assert len(json.loads((tmp_path / "e" / "transforms.json").read_text())["frames"]) == 4 + 2
+    assert "ns-train splatfacto --data" in out and "opensplat" in out
+
+
+# --- what real trainers read -------------------------------------------------------------------------------------
+
+
+def _c2w_opencv(out, fmt) -> tuple[list[str], np.ndarray]:
+    """(image names, camera-to-world [N, 4, 4] in OpenCV axes) as the consumers read them from the export."""
+    if fmt == "colmap":
+        rec = pycolmap.Reconstruction(out / "sparse" / "0")
+        ims = sorted(rec.images.values(), key=lambda im: im.name)
+        w2c = np.stack([np.vstack([im.cam_from_world().matrix(), [0, 0, 0, 1]]) for im in ims])
+        return [im.name for im in ims], np.linalg.inv(w2c)
+    frames = json.loads((out / "transforms.json").read_text())["frames"]
+    gl = np.array([f["transform_matrix"] for f in frames])
+    return [f["file_path"].split("/")[-1] for f in frames], gl @ np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def opensplat_scale(c2w):
+    """pierotofy/OpenSplat tensor_math.cpp autoScaleAndCenterPoses (float32 torch, as there): origins minus their
+    mean, f = 1 / max(|origins|) -> the factor the world is multiplied by."""
+    origins = torch.tensor(c2w[:, :3, 3], dtype=torch.float32)
+    origins = origins - origins.mean(0)
+    return (1.0 / torch.max(torch.abs(origins))).item()  # float32 division, as in C++: inf when all are centred
+
+
+def nerfstudio_scale(c2w):
+    """nerfstudio nerfstudio_dataparser.py / colmap_dataparser.py: camera_utils.auto_orient_and_center_poses
+    (method "up", center_method "poses") then ``scale_factor /= float(torch.max(torch.abs(poses[:, :3, 3])))``."""
+    poses = torch.tensor(c2w @ np.diag([1.0, -1.0, -1.0, 1.0]), dtype=torch.float32)[:, :3]  # OpenGL axes
+    mean_origin = poses[:, :3, 3].mean(0)
+    up = poses[:, :3, 1].mean(0)
+    up = up / torch.linalg.norm(up)
+    a, b = up, torch.tensor([0.0, 0.0, 1.0])
+    v = torch.linalg.cross(a, b)
+    v = v / torch.linalg.norm(v)
+    skew = torch.tensor([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    theta = torch.acos(torch.clip(torch.dot(a, b), -1, 1))
+    rotation = torch.eye(3) + torch.sin(theta) * skew + (1 - torch.cos(theta)) * (skew @ skew)
+    transform = torch.cat([rotation, rotation @ -mean_origin[..., None]], -1)
+    oriented = transform @ torch.cat([poses, torch.tensor([[[0.0, 0, 0, 1]]]).expand(len(poses), 1, 4)], 1)
+    return 1.0 / float(torch.max(torch.abs(oriented[:, :3, 3])))  # ZeroDivisionError when every camera is centred
+
+
+def gsplat_scene_scale(c2w, normalize: bool):
+    """gsplat examples/datasets/colmap.py Parser (scene_scale = max distance of the camera centres from their mean,
+    after normalize.py similarity_from_cameras when normalize) x 1.1 (simple_trainer.py Runner)."""
+    t = c2w[:, :3, 3]
+    if normalize:  # similarity_from_cameras, center_method "focus", median scaling (its rotation changes no length)
+        fwds = c2w[:, :3, 2]
+        nearest = t + (fwds * -t).sum(-1)[:, None] * fwds
+        t = t - np.median(nearest, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if normalize:
+            t = t * (1.0 / np.median(np.linalg.norm(t, axis=-1)))
+        return 1.1 * np.max(np.linalg.norm(t - t.mean(0), axis=1))
+
+
+def gs3d_extent(c2w, names, eval_split: bool):
+    """graphdeco-inria/gaussian-splatting scene/dataset_readers.py getNerfppNorm on the train cameras (sorted by
+    name; with --eval every llffhold = 8th is a test camera): radius = 1.1 x max |C - mean C|."""
+    order = np.argsort(names)
+    train = [i for k, i in enumerate(order) if not (eval_split and k % 8 == 0)]
+    centres = c2w[train, :3, 3].T
+    return 1.1 * np.max(np.linalg.norm(centres - centres.mean(1, keepdims=True), axis=0))
+
+
+@pytest.mark.parametrize("fmt", ["colmap", "nerfstudio"])
+def test_every_consumer_gets_a_finite_scene_scale(scene, cloud, tmp_path, fmt):
+    out = export_scene(scene, cloud, VIEWS, fmt, tmp_path / fmt, view_size=SIZE)
+    names, c2w = _c2w_opencv(out, fmt)
+    ours = json.loads((out / "export.json").read_text())
+    rules = {
+        "opensplat": opensplat_scale(c2w),
+        "nerfstudio": nerfstudio_scale(c2w),
+        "gsplat": gsplat_scene_scale(c2w, normalize=False),
+        "3dgs": gs3d_extent(c2w, names, eval_split=False),
+    }
+    extent = ours["cloud_extent"]
+    for name, value in rules.items():
+        assert np.isfinite(value) and value > 0, name
+        if name in ours["consumer_scales"]:  # export.json reports what the consumer computes
+            assert value == pytest.approx(ours["consumer_scales"][name], rel=1e-5), name
+    # the scene's size each consumer works in is the cloud's extent (within the anchors' reach beyond the cloud)
+    assert 0.9 < 1 / (rules["opensplat"] * extent) < 1.6 and 0.9 < rules["3dgs"] / (1.1 * extent) < 1.6
+    assert np.isfinite(gs3d_extent(c2w, names, eval_split=True))
+    # gsplat's default normalisation divides by the median camera distance: infinite here, hence the flag
+    assert not np.isfinite(gsplat_scene_scale(c2w, normalize=True))
+    cmds = ours["commands"]
+    assert "--no-normalize-world-space" in cmds.get("gsplat", "--no-normalize-world-space")
+    assert set(cmds) == (
+        {"opensplat", "nerfstudio", "gsplat", "3dgs"} if fmt == "colmap" else {"opensplat", "nerfstudio"}
+    )
+    readme = (out / "README.txt").read_text()
+    assert all(c in readme for c in cmds.values()) and "anchor" in readme
+
+
+def test_label_views_alone_are_degenerate(scene):
+    """Why the anchors exist: on the label views alone every rule divides by zero or gives a zero extent."""
+    c2w = np.stack([np.linalg.inv(lv.camera.viewmat) for lv in make_pseudo_labels(scene, VIEWS, SIZE)])
+    assert not np.isfinite(opensplat_scale(c2w))
+    with pytest.raises(ZeroDivisionError):
+        nerfstudio_scale(c2w)
+    assert (
+        gsplat_scene_scale(c2w, normalize=False) == 0 and gs3d_extent(c2w, [str(i) for i in range(VIEWS)], False) == 0
+    )
+
+
+def test_anchors_see_no_point_and_are_black(scene, cloud, tmp_path):
+    out = export_scene(scene, cloud, VIEWS, "nerfstudio", tmp_path / "n", view_size=SIZE)
+    meta = json.loads((out / "transforms.json").read_text())
+    anchors = [f for f in meta["frames"] if "anchor" in f["file_path"]]
+    assert len(anchors) == 2
+    for f in anchors:
+        w2c = viewmat_from_c2w_opengl(np.array(f["transform_matrix"]))
+        p = cloud.xyz @ w2c[:3, :3].T + w2c[:3, 3]
+        assert (p[:, 2] < 0).all()  # every point behind the anchor: it sees nothing
+        assert not np.asarray(iio.imread(out / f["file_path"])).any()
+
+
+def test_ply_is_float32_as_opensplat_reads_it(scene, cloud, tmp_path):
+    """sparse_pc.ply: x, y, z float32 then uchar red, green, blue, nothing else, and read back the way OpenSplat's
+    point_io.cpp fastPlyReadPointSet does (3 floats, then 3 bytes per vertex, whatever the header says)."""
+    out = export_scene(scene, cloud, VIEWS, "nerfstudio", tmp_path / "n", view_size=SIZE)
+    raw = (out / "sparse_pc.ply").read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    props = [ln for ln in raw[:end].decode().splitlines() if ln.startswith("property")]
+    assert props == [f"property float {c}" for c in "xyz"] + [f"property uchar {c}" for c in ("red", "green", "blue")]
+    rec = np.frombuffer(raw[end:], dtype=[("xyz", "<f4", 3), ("rgb", "u1", 3)], count=len(cloud))
+    assert len(raw) - end == len(cloud) * 15
+    assert np.isfinite(rec["xyz"]).all() and np.array_equal(rec["xyz"], cloud.xyz)
+    assert np.array_equal(rec["rgb"], np.clip(np.round(cloud.rgb * 255), 0, 255).astype(np.uint8))

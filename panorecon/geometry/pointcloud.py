@@ -67,19 +67,24 @@ class PointCloud:
             pc.normals = o3d.utility.Vector3dVector(self.normals.astype(np.float64))
         return pc
 
-    def save_ply(self, path: str | os.PathLike) -> None:
-        """Write a binary little-endian PLY (x,y,z, nx,ny,nz, red,green,blue as float, view_id int) atomically."""
+    def save_ply(self, path: str | os.PathLike, uchar_rgb: bool = False) -> None:
+        """Write a binary little-endian PLY (x,y,z, nx,ny,nz as float32; red,green,blue as float32 in [0, 1], or
+        with ``uchar_rgb`` as uchar 0-255, the layout COLMAP-derived PLYs use and OpenSplat's reader assumes;
+        view_id int32) atomically."""
         cols = [("x", self.xyz[:, 0]), ("y", self.xyz[:, 1]), ("z", self.xyz[:, 2])]
         if self.normals is not None:
             cols += [(n, self.normals[:, k]) for k, n in enumerate(("nx", "ny", "nz"))]
-        cols += [(n, self.rgb[:, k]) for k, n in enumerate(("red", "green", "blue"))]
+        rgb = np.clip(np.round(self.rgb * 255), 0, 255).astype(np.uint8) if uchar_rgb else self.rgb
+        cols += [(n, rgb[:, k]) for k, n in enumerate(("red", "green", "blue"))]
         if self.view_id is not None:
             cols.append(("view_id", self.view_id))
-        dtype = [(n, "<i4" if n == "view_id" else "<f4") for n, _ in cols]
+        kinds = {"view_id": "int"} | (dict.fromkeys(("red", "green", "blue"), "uchar") if uchar_rgb else {})
+        dtypes = {"float": "<f4", "int": "<i4", "uchar": "u1"}
+        dtype = [(n, dtypes[kinds.get(n, "float")]) for n, _ in cols]
         header = (
             "ply\nformat binary_little_endian 1.0\ncomment panorecon\n"
             f"element vertex {len(self)}\n"
-            + "".join(f"property {'int' if n == 'view_id' else 'float'} {n}\n" for n, _ in cols)
+            + "".join(f"property {kinds.get(n, 'float')} {n}\n" for n, _ in cols)
             + "end_header\n"
         )
         path = Path(path)

@@ -25,6 +25,17 @@ def test_round_trip_keeps_points_colours_and_view_ids(tmp_path, ply_bytes):
     np.testing.assert_array_equal(pc.view_id, np.arange(500) % 7)
 
 
+def test_uchar_colours_are_written_as_bytes_and_read_back(tmp_path):
+    rng = np.random.default_rng(1)
+    pc = PointCloud(rng.normal(size=(50, 3)), rng.random((50, 3)))
+    pc.save_ply(tmp_path / "u.ply", uchar_rgb=True)
+    raw = (tmp_path / "u.ply").read_bytes()
+    assert b"property float x\n" in raw and b"property uchar red\n" in raw and b"property float red" not in raw
+    back = PointCloud.load_ply(tmp_path / "u.ply")
+    np.testing.assert_array_equal(back.xyz, pc.xyz)
+    np.testing.assert_allclose(back.rgb, np.round(pc.rgb * 255) / 255, atol=1e-7)
+
+
 @given(frac=st.floats(min_value=0.0, max_value=0.999))
 def test_a_cut_off_ply_is_refused_not_read_as_points_at_the_origin(tmp_path_factory, ply_bytes, frac):
     path = tmp_path_factory.mktemp("cut") / "cut.ply"

@@ -1,0 +1,203 @@
+"""OpenSplat (pierotofy/OpenSplat, a CPU build) beside panorecon's trainer on the same ``panorecon export``: same
+pseudo-label images, same initial cloud, same step count; both scored by panorecon's own evaluation on the label
+cameras and the held-out cameras. Prints JSON (machine, versions, commits, load averages, per format: seconds per
+step, PSNR/SSIM/LPIPS, Gaussians, and the ratio of OpenSplat's seconds per step to panorecon's).
+
+    python eval/peers/opensplat.py --opensplat /path/to/opensplat OUT [--scene bedroom] [--iters 300]
+    python eval/peers/opensplat.py --opensplat build/opensplat out/beach --scene beach --formats colmap nerfstudio
+
+OpenSplat is optional and never a dependency: pass the path of a binary built with its own instructions
+(``-DGPU_RUNTIME=CPU``; docs/benchmarks.md). It runs unpatched with the command ``export`` prints for it plus
+``-n ITERS --num-downscales 0`` (train at the labels' resolution from step 1, as panorecon does; OpenSplat's
+default starts at a quarter of it for 3000 steps). Its PLY (``--keep-crs``: the export's frame) is read with
+``splat/ply.py`` and rendered with panorecon's rasterizer over OpenSplat's own background colour (what it trained
+against). panorecon's run gets the same input: the exported cloud as it is (no disocclusion fill, no thinning),
+no sky environment, no depth term.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+OPENSPLAT_BACKGROUND = (0.6130, 0.0101, 0.3984)  # model.hpp: backgroundColor ("Nerf Studio default")
+
+
+def load_average() -> list[float]:
+    """The 1, 5 and 15 minute load averages (/proc/loadavg; the machine may be shared)."""
+    try:
+        return [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
+    except OSError:
+        return []
+
+
+def opensplat_version(binary: str) -> str:
+    """``opensplat --version``: e.g. "1.1.5 (git commit 15b7e80)"."""
+    return subprocess.run([binary, "--version"], capture_output=True, text=True, timeout=60).stdout.strip()
+
+
+def seconds_per_step(step_times: list[tuple[int, float]]) -> float:
+    """Median seconds between consecutive "Step N" lines [(step, wall time)] (NaN with fewer than two)."""
+    import numpy as np
+
+    d = [(t1 - t0) / (s1 - s0) for (s0, t0), (s1, t1) in zip(step_times, step_times[1:]) if s1 > s0]
+    return float(np.median(d)) if d else float("nan")
+
+
+def run_opensplat(binary: str, command: str, iters: int, log_path: Path) -> dict:
+    """Run the export's OpenSplat ``command`` with ``binary`` for ``iters`` steps at full resolution; time each
+    step from its "Step N:" lines -> {seconds_per_step, wall_s, returncode, argv}."""
+    argv = [binary, *shlex.split(command)[1:], "-n", str(iters), "--num-downscales", "0"]
+    steps, t0 = [], time.perf_counter()
+    with (
+        open(log_path, "w") as log,
+        subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as p,
+    ):
+        for line in p.stdout:
+            log.write(line)
+            log.flush()
+            if line.startswith("Step "):
+                steps.append((int(line.split()[1].rstrip(":")), time.perf_counter()))
+    return {
+        "argv": argv,
+        "returncode": p.returncode,
+        "wall_s": time.perf_counter() - t0,
+        "steps_seen": len(steps),
+        "seconds_per_step": seconds_per_step(steps),
+    }
+
+
+def score_ply(ply: Path, labels, heldout, res: int, fov_deg: float, background) -> dict:
+    """panorecon's evaluation of a 3DGS PLY: Gaussians, non-finite means, and PSNR/SSIM/LPIPS on ``labels`` and
+    ``heldout`` rendered over a constant ``background`` (RGB in [0, 1])."""
+    import dataclasses
+
+    import numpy as np
+    import torch
+
+    from panorecon.splat.ply import load_ply
+    from panorecon.splat.trainer import TrainConfig, _evaluate
+
+    model = load_ply(ply)
+    bad = int((~torch.isfinite(model.means).all(1)).sum())
+    out = {"gaussians": len(model), "non_finite_means": bad}
+    if bad:
+        return out | {"pseudo-label": f"n/a: {bad} non-finite means", "held-out": f"n/a: {bad} non-finite means"}
+    bg = np.broadcast_to(np.asarray(background, np.float32), (res, res, 3)).copy()
+    cfg = TrainConfig(res=res, fov_deg=fov_deg, backend="cpu")
+    views = {k: [dataclasses.replace(v, background=bg) for v in vs] for k, vs in (("l", labels), ("h", heldout))}
+    return out | {
+        "pseudo-label": _evaluate(model, views["l"], cfg, "cpu"),
+        "held-out": _evaluate(model, views["h"], cfg, "cpu") if heldout else "n/a: scene has no ground-truth world",
+    }
+
+
+def main(argv=None) -> dict:
+    import torch
+
+    from panorecon.evaluation.environment import emit, environment
+    from panorecon.export import FORMATS, export_scene
+    from panorecon.scenes import load_scene
+    from panorecon.sources import cloud_scale, run_source
+    from panorecon.splat.labels import in_cloud_frame, make_heldout_views, make_pseudo_labels
+    from panorecon.splat.trainer import TrainConfig, train
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", help="folder for the exports, both trainers' outputs and result.json")
+    ap.add_argument("--opensplat", required=True, help="path to an OpenSplat binary")
+    ap.add_argument("--scene", default="bedroom")
+    ap.add_argument("--width", type=int, default=None, help="ERP width (default: the scene's, as `export`)")
+    ap.add_argument("--source", default="fibonacci")
+    ap.add_argument("--teacher", default="sim:relative")
+    ap.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS))
+    ap.add_argument("--iters", type=int, default=300)
+    ap.add_argument("--labels", type=int, default=120)
+    ap.add_argument("--res", type=int, default=256)
+    ap.add_argument("--fov", type=float, default=60.0)
+    ap.add_argument("--heldout", type=int, default=8)
+    args = ap.parse_args(argv)
+    binary = str(Path(args.opensplat).resolve())
+    if not Path(binary).is_file():
+        ap.error(f"--opensplat {args.opensplat}: no such file (build OpenSplat first; docs/benchmarks.md)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    scene = load_scene(args.scene, args.width)
+    cloud, report = run_source(scene, args.source, args.teacher, None)
+    labels = make_pseudo_labels(scene, args.labels, args.res, args.fov)
+    heldout = []
+    if scene.world is not None:
+        heldout = [
+            in_cloud_frame(v, cloud_scale(report))
+            for v in make_heldout_views(scene, args.heldout, args.res, args.fov, seed=0)
+        ]
+    result = {
+        **environment(),
+        "opensplat": opensplat_version(binary),
+        "scene": scene.name,
+        "source": args.source,
+        "teacher": args.teacher,
+        "cloud_points": len(cloud),
+        "iters": args.iters,
+        "labels": args.labels,
+        "res": args.res,
+        "torch_threads": torch.get_num_threads(),
+        "opensplat_runs": {},
+    }
+    about = {"scene": scene.name, "source": args.source, "teacher": report.get("teacher")}
+    for fmt in args.formats:
+        d = export_scene(scene, cloud, args.labels, fmt, out / fmt, args.res, args.fov, overwrite=True, about=about)
+        meta = json.loads((d / "export.json").read_text())
+        load = load_average()
+        run = run_opensplat(binary, meta["commands"]["opensplat"], args.iters, out / f"opensplat_{fmt}.log")
+        run["load_before"], run["load_after"] = load, load_average()
+        run["export_scale"] = meta["consumer_scales"]["opensplat"]
+        ply = d / "opensplat.ply"
+        if run["returncode"] == 0 and ply.is_file():
+            run |= score_ply(ply, labels, heldout, args.res, args.fov, OPENSPLAT_BACKGROUND)
+        else:
+            run["error"] = f"n/a: OpenSplat exited {run['returncode']} (log: {out / f'opensplat_{fmt}.log'})"
+        result["opensplat_runs"][fmt] = run
+
+    cfg = TrainConfig(
+        iters=args.iters,
+        res=args.res,
+        labels=args.labels,
+        fov_deg=args.fov,
+        backend="cpu",
+        heldout=args.heldout,
+        history_every=0,
+        sky="none",
+        disocclusion_fill_deg=0.0,
+        init_pixels_per_point=0.0,
+    )
+    shutil.rmtree(out / "panorecon", ignore_errors=True)  # train() would resume a finished run
+    load = load_average()
+    m = train(
+        scene, cloud, cfg, out / "panorecon", None, progress=False, device="cpu", heldout_scale=cloud_scale(report)
+    )
+    result["panorecon"] = {
+        "config": "same input: the exported cloud as is (no fill, no thinning), no sky, no depth term",
+        "seconds_per_step": m["seconds"]["train"] / args.iters,
+        "train_s": m["seconds"]["train"],
+        "gaussians": m["gaussians"],
+        "pseudo-label": m["pseudo-label"],
+        "held-out": m["held-out"],
+        "load_before": load,
+        "load_after": load_average(),
+    }
+    for run in result["opensplat_runs"].values():
+        sps = run.get("seconds_per_step")
+        if isinstance(sps, float) and math.isfinite(sps):
+            run["seconds_per_step_vs_panorecon"] = sps / result["panorecon"]["seconds_per_step"]
+    return emit(result, str(out / "result.json"))
+
+
+if __name__ == "__main__":
+    main()
