@@ -28,6 +28,30 @@ from .suite import Suite, resolve_names
 ENGINES = ("local", "dask")
 
 
+def check_scheduler(address: str, timeout: float = 3.0) -> None:
+    """PanoreconInputError unless ``address`` (``tcp://HOST:PORT`` or ``HOST:PORT``) is well formed and accepts a
+    TCP connection within ``timeout`` seconds (dask's own client waits 30 s, then raises a traceback)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from ..io import PanoreconInputError
+
+    hint = "start one with `dask scheduler --port PORT` (and `dask worker tcp://HOST:PORT`), or leave out --scheduler"
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host, port = None, None
+    if parts.scheme != "tcp" or not host or port is None or parts.path not in ("", "/"):
+        raise PanoreconInputError(f"--scheduler {address!r}: expected tcp://HOST:PORT; {hint}")
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as e:
+        raise PanoreconInputError(
+            f"--scheduler {address}: no Dask scheduler reachable there ({e.strerror or e}); {hint}"
+        ) from None
+
+
 def _init_worker(threads: int) -> None:
     import torch
 
