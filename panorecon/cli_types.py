@@ -113,6 +113,11 @@ POSITIVE_FLOAT = float_in(1e-12, None, "positive number")
 FINITE_FLOAT = float_in(None, None, "number")
 
 
+def _read_only(path: Path) -> bool:
+    """Not writable by this process, or without any write permission bit (chmod a-w: refused even for root)."""
+    return not os.access(path, os.W_OK | (os.X_OK if path.is_dir() else 0)) or not (path.stat().st_mode & 0o222)
+
+
 def _nearest_existing(path: Path) -> Path:
     p = path.absolute()
     while not p.exists() and p != p.parent:
@@ -180,7 +185,7 @@ def out_dir(text: str, writes: tuple[str, ...] = ()) -> PathArg:
     base = _nearest_existing(path)
     if not base.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: {base} is not a folder; expected an output folder")
-    if not os.access(base, os.W_OK | os.X_OK):
+    if _read_only(base):
         raise argparse.ArgumentTypeError(f"{text}: {base} is not writable (read-only or no permission)")
     return PathArg.make(text, "out", "dir", writes)
 
@@ -207,9 +212,7 @@ def out_file(text: str) -> PathArg:
     if path.is_dir() or text.endswith(os.sep):
         raise argparse.ArgumentTypeError(f"{text}: is a folder; expected an output file path")
     out_dir(str(path.parent) if str(path.parent) else ".")
-    if path.exists() and not os.access(path.parent, os.W_OK):
-        raise argparse.ArgumentTypeError(f"{text}: its folder is not writable")
-    if path.exists() and not os.access(path, os.W_OK):
+    if path.exists() and _read_only(path):
         raise argparse.ArgumentTypeError(f"{text}: exists and is read-only")
     return PathArg.make(text, "out", "file")
 
