@@ -6,6 +6,7 @@ import argparse
 import errno
 import logging
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -15,6 +16,47 @@ from . import cli_types as T
 from .io import PanoreconInputError
 
 log = logging.getLogger("panorecon")
+
+# what each command writes into its --out folder (relative fnmatch patterns; ``*`` crosses folders): the path
+# collision check (cli_types.path_collisions) and the run-folder claim (io.runs.claim_run) both use them
+RENDER_WRITES = ("pano.png", "mask.png", "distance.npy", "scene.json", "heldout_*.npz")
+TRAIN_WRITES = (
+    "*_cloud.ply",
+    "*_report.json",
+    "point_cloud.ply",
+    "sky.png",
+    "cameras.json",
+    "metrics.json",
+    "ckpt.pt",
+    "ckpt.pt.bad",
+    "renders/*",
+)
+DEMO_WRITES = (*RENDER_WRITES, *TRAIN_WRITES, "gt_cloud.ply", "gt_cloud.png", "*_cloud.png", "panorama.png")
+ABLATE_WRITES = ("results.csv", "results.md", "*.png", "report.html", "cache/*")
+
+
+def _claim(args, command: str, inputs: dict, writes: tuple[str, ...]) -> None:
+    """The run-folder claim of ``args.out`` (see io.runs), unless a caller (demo) claimed it already."""
+    from .io.runs import claim_run
+
+    if not getattr(args, "claimed", False):
+        claim_run(args.out, command, inputs, writes, getattr(args, "overwrite", False))
+
+
+def _input_identity(args) -> dict:
+    """The SCENE and --depth of a command as JSON scalars, files by their SHA-256 (what decides the results)."""
+    import os
+
+    from .io import file_sha256
+
+    def ident(path):
+        return None if path is None else f"{path}#{file_sha256(path)[:16]}" if os.path.isfile(path) else str(path)
+
+    return {
+        "scene": ident(args.scene),
+        "width": args.width,
+        **{k: ident(getattr(args, k, None)) if k == "depth" else getattr(args, k, None) for k in DEPTH_OPTIONS},
+    }
 
 
 # ---------------------------------------------------------------- scenes
@@ -76,6 +118,7 @@ def cmd_render(args) -> int:
     scene = scene_from_args(args)
     seconds = time.perf_counter() - t0
     out = Path(args.out)
+    _claim(args, "render", {**_input_identity(args), "heldout": getattr(args, "heldout", 0)}, RENDER_WRITES)
     write_image(out / "pano.png", scene.rgb)
     mask = scene.valid if scene.distance is not None else ~scene.sky
     write_image(out / "mask.png", (mask * 255).astype(np.uint8))
@@ -134,6 +177,11 @@ def cmd_inspect(args) -> int:
 
     path = Path(args.cloud)
     pc = PointCloud.load_ply(path)
+    if args.clip_z is not None and not (pc.xyz[:, 2] <= args.clip_z).any():
+        raise PanoreconInputError(
+            f"--clip-z {args.clip_z:g} hides every point of {path} (its heights run from "
+            f"{pc.xyz[:, 2].min():.3g} to {pc.xyz[:, 2].max():.3g} m)"
+        )
     if args.screenshot:
         screenshot(pc, args.screenshot, args.color, args.point_size, args.clip_z)
         print(f"{path}: {len(pc)} points -> {args.screenshot}")
@@ -154,7 +202,16 @@ def cmd_demo(args) -> int:
     out = Path(args.out)
     scene = args.scene or DEFAULT_SCENE
     depth = {k: getattr(args, k) for k in DEPTH_OPTIONS}
-    cmd_render(argparse.Namespace(scene=scene, out=str(out), width=args.width, **depth))
+    # everything the steps below need, checked before the first of them writes a byte
+    scene_from_args(argparse.Namespace(scene=scene, width=64, **depth))  # the teacher spec: at parse time
+    _claim(
+        args,
+        "demo",
+        {**_input_identity(argparse.Namespace(scene=scene, width=args.width, **depth)), "teacher": args.teacher},
+        DEMO_WRITES,
+    )
+    claimed = {"claimed": True}
+    cmd_render(argparse.Namespace(scene=scene, out=str(out), width=args.width, **depth, **claimed))
     cmd_gt_cloud(argparse.Namespace(scene=scene, out=str(out / "gt_cloud.ply"), width=args.width, **depth))
     from .geometry import PointCloud
 
@@ -190,6 +247,7 @@ def cmd_demo(args) -> int:
             no_progress=False,
             out=str(out),
             **depth,
+            **claimed,
         )
     )
     cmd_inspect(
@@ -282,9 +340,23 @@ def cmd_points(args) -> int:
     from .sources import get_source
 
     resolve_device(args.device)  # --device cuda without CUDA: refused before any work
-    get_source(args.source)  # an unknown source fails before the scene is rendered
+    _check_source(args)  # an unknown source, or views it cannot take, fail before the scene is rendered
+    get_source(args.source)
     _initial_cloud(args, scene_from_args(args), args.out, args.report)
     return 0
+
+
+def _check_source(args) -> None:
+    """The source's name and its view count, and the teacher spec, checked before any work."""
+    from .geometry.layouts import LAYOUT_NAMES, make_layout
+    from .sources import get_source
+
+    get_source(args.source)
+    if args.source in LAYOUT_NAMES and args.views is not None:
+        try:
+            make_layout(args.source, args.views)
+        except ValueError as e:
+            raise PanoreconInputError(f"--views {args.views}: {e}") from None
 
 
 # `train`'s point-source views where they differ from the source's own default (Fibonacci: 20, the paper's):
@@ -308,8 +380,21 @@ def cmd_train(args) -> int:
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in fields and v is not None})
     if args.views is None:
         args = argparse.Namespace(**{**vars(args), "views": TRAIN_VIEWS.get(args.source)})
+    _check_source(args)
     scene = scene_from_args(args)
     out = Path(args.out)
+    _claim(
+        args,
+        "train",
+        {
+            **_input_identity(args),
+            "source": args.source,
+            "teacher": args.teacher,
+            "views": args.views,
+            "config": cfg.digest(),
+        },
+        TRAIN_WRITES,
+    )
     pc, report = _initial_cloud(args, scene, out / f"{args.source}_cloud.ply", out / f"{args.source}_report.json")
     m = train(
         scene,
@@ -369,8 +454,26 @@ def cmd_ablate(args) -> int:
     if not args.suite:
         raise PanoreconInputError("ablate: give a suite file (e.g. eval/suites/quick.toml) or --from-csv results.csv")
     resolve_device(args.device)
+    if args.scheduler and args.engine != "dask":
+        raise PanoreconInputError(f"--scheduler {args.scheduler}: a scheduler is used only with --engine dask")
+    if args.root is not None and not Path(args.root).is_dir():
+        raise PanoreconInputError(f"--root {args.root}: no such folder (expected a dataset root)")
     suite = load_suite(args.suite, args.root)
-    print(f"{suite.title}: {len(suite.rows)} runs -> {args.out}")
+    if len(suite.rows) > args.max_runs:
+        raise PanoreconInputError(
+            f"suite {args.suite} expands to {len(suite.rows)} runs, more than --max-runs {args.max_runs}; "
+            "pass a larger --max-runs to run it"
+        )
+    if args.engine == "dask" and args.scheduler:
+        from .evaluation.ablate import check_scheduler
+
+        check_scheduler(args.scheduler)
+    points = {r.points_key() for r in suite.rows}
+    trains = {r.train_key() for r in suite.rows if r.train is not None}
+    print(
+        f"{suite.title}: {len(suite.rows)} runs, {len(points)} distinct point-cloud stages and {len(trains)} "
+        f"distinct training stages -> {args.out}"
+    )
     frame = run_suite(
         suite,
         args.out,
@@ -399,6 +502,9 @@ def _ablate_from_csv(args) -> int:
     frame = rerender(args.from_csv, args.out, suite)
     print(f"{len(frame)} runs from {args.from_csv} -> {Path(args.out) / 'results.md'}, report.html, pareto.png")
     return 0
+
+
+MAX_RUNS = 10_000  # a larger suite needs an explicit --max-runs
 
 
 def cmd_bench(args) -> int:
@@ -434,6 +540,7 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument(
         "--root",
         default=None,
+        type=T.in_path,
         help="list instead the dataset panoramas (Stanford2D3D, Structured3D, "
         "Matterport3D) found under this folder, as scene names",
     )
@@ -443,14 +550,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="every posed dataset panorama under ROOT: does its true depth agree with the other panoramas of its "
         "space and with the dataset's annotated planes? (exit 1 when one is flagged)",
     )
-    ck.add_argument("root", help="a dataset folder (as for `scenes list --root`)")
+    ck.add_argument("root", type=T.in_path, help="a dataset folder (as for `scenes list --root`)")
     ck.add_argument("--width", type=T.int_in(64, 8192, "width", even=True), default=512, help="ERP width to check at")
     ck.add_argument("--json", type=T.out_file, default=None, help="also write the results as JSON to this file")
     ck.set_defaults(fn=cmd_scenes_check)
 
     r = sub.add_parser("render", help="write pano.png, distance.npy (float32 metres, inf = sky) and mask.png")
-    r.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
-    r.add_argument("--out", required=True, type=T.out_dir, help="output folder")
+    r.add_argument("scene", type=T.scene, help="scene name (see `panorecon scenes list`) or an ERP image path")
+    r.add_argument("--out", required=True, type=T.out_dir_writing(*RENDER_WRITES), help="output folder")
+    r.add_argument("--overwrite", action="store_true", help="delete another run's outputs in --out first")
     r.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width in pixels (height = width / 2)")
     r.add_argument(
         "--heldout",
@@ -468,13 +576,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(fn=cmd_render)
 
     g = sub.add_parser("gt-cloud", help="the ground-truth coloured point cloud from the true distance")
-    g.add_argument("scene")
+    g.add_argument("scene", type=T.scene)
     g.add_argument("--out", required=True, type=T.out_file, help="output .ply")
     g.add_argument("--width", type=T.ERP_WIDTH, default=None)
     g.set_defaults(fn=cmd_gt_cloud)
 
     i = sub.add_parser("inspect", help="look at a point cloud with pyvista")
-    i.add_argument("cloud", help="a .ply point cloud")
+    i.add_argument("cloud", type=T.in_path, help="a .ply point cloud")
     i.add_argument("--screenshot", type=T.out_file, help="render off-screen to this PNG instead of opening a window")
     i.add_argument("--color", default=None, help="colour by this per-point scalar (e.g. view_id, error) instead of RGB")
     i.add_argument("--point-size", type=T.float_in(0.1, 100.0, "point size"), default=2.0)
@@ -489,11 +597,12 @@ def build_parser() -> argparse.ArgumentParser:
     sl.add_parser("list", help="registered point sources").set_defaults(fn=cmd_sources_list)
 
     pt = sub.add_parser("points", help="build an initial point cloud with a point source and report its error")
-    pt.add_argument("scene")
+    pt.add_argument("scene", type=T.scene)
     pt.add_argument("--source", required=True, help="see `panorecon sources list`")
     pt.add_argument(
         "--teacher",
         default=None,
+        type=T.teacher_spec,
         help="sim:<profile> | onnx:<model.onnx> | file:<depth>[?scale=S] | "
         "hf:<model id or folder> | moge:<checkpoint> (see `panorecon teachers list`)",
     )
@@ -523,9 +632,11 @@ def build_parser() -> argparse.ArgumentParser:
     pt.set_defaults(fn=cmd_points)
 
     tr = sub.add_parser("train", help="fit Gaussians from a point source to the scene's pseudo-labels")
-    tr.add_argument("scene")
+    tr.add_argument("scene", type=T.scene)
     tr.add_argument("--source", required=True)
-    tr.add_argument("--teacher", default=None, help="depth teacher for the source and the Pearson depth term")
+    tr.add_argument(
+        "--teacher", default=None, type=T.teacher_spec, help="depth teacher for the source and the Pearson depth term"
+    )
     tr.add_argument(
         "--views",
         type=T.VIEWS,
@@ -558,19 +669,26 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--out",
         required=True,
-        type=T.out_dir,
+        type=T.out_dir_writing(*TRAIN_WRITES),
         help="output folder (point_cloud.ply, renders/, metrics.json; resumes ckpt.pt)",
     )
+    tr.add_argument("--overwrite", action="store_true", help="delete another run's outputs in --out first")
     tr.set_defaults(fn=cmd_train)
 
     ab = sub.add_parser(
         "ablate", help="run an ablation suite (eval/suites/*.toml): results.csv, results.md, plots, report.html"
     )
     ab.add_argument(
-        "suite", nargs="?", help="suite file, e.g. eval/suites/quick.toml (with --from-csv: optional, for its titles)"
+        "suite",
+        nargs="?",
+        type=T.in_path,
+        help="suite file, e.g. eval/suites/quick.toml (with --from-csv: optional, for its titles)",
     )
     ab.add_argument(
-        "--out", required=True, type=T.out_dir, help="output folder (its cache/ makes a rerun or a resumed run cheap)"
+        "--out",
+        required=True,
+        type=T.out_dir_writing(*ABLATE_WRITES),
+        help="output folder (its cache/ makes a rerun or a resumed run cheap)",
     )
     ab.add_argument("--jobs", type=T.JOBS, default=1, help="parallel worker processes")
     ab.add_argument(
@@ -581,14 +699,29 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ab.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (with --engine dask)")
     ab.add_argument(
-        "--cache", default=None, type=T.out_dir, help="stage cache folder shared between suites (default OUT/cache)"
+        "--cache",
+        default=None,
+        type=T.out_dir_writing("*"),
+        help="stage cache folder shared between suites (default OUT/cache)",
     )
     ab.add_argument("--no-progress", action="store_true")
-    ab.add_argument("--root", default=None, help="dataset root for a suite's {root} (default $PANORECON_DATASET_ROOT)")
+    ab.add_argument(
+        "--max-runs",
+        type=T.int_in(1, None, "run count"),
+        default=MAX_RUNS,
+        help=f"refuse a suite that expands to more runs than this (default {MAX_RUNS})",
+    )
+    ab.add_argument(
+        "--root",
+        default=None,
+        type=T.in_path,
+        help="dataset root for a suite's {root} (default $PANORECON_DATASET_ROOT)",
+    )
     ab.add_argument(
         "--from-csv",
         default=None,
         metavar="CSV",
+        type=T.in_path,
         help="re-render results.md, report.html and plots from a results.csv into --out; nothing is run",
     )
     _add_device(ab)
@@ -596,8 +729,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     be = sub.add_parser("bench", help="the benchmark CI job: tiny suite + micro-benchmarks against a baseline")
     be.add_argument("--quick", action="store_true", help="tiny sizes (CI)")
-    be.add_argument("--suite", default="eval/suites/bench.toml")
-    be.add_argument("--baseline", default="benchmarks/baseline.json")
+    be.add_argument("--suite", default="eval/suites/bench.toml", type=T.in_path)
+    be.add_argument("--baseline", default="benchmarks/baseline.json", type=T.in_path)
     be.add_argument("--out", default=None, type=T.out_file, help="also write the result JSON here")
     be.add_argument("--update-baseline", action="store_true", help="store this run as the baseline")
     _add_device(be)
@@ -614,10 +747,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_mesh_parser(sub)
 
     d = sub.add_parser("demo", help="the main job on the default scene (render, cloud, screenshot)")
-    d.add_argument("--out", default="out/demo", type=T.out_dir)
-    d.add_argument("--scene", default=None, help="scene name (default: the built-in default scene)")
+    d.add_argument("--out", default="out/demo", type=T.out_dir_writing(*DEMO_WRITES))
+    d.add_argument("--overwrite", action="store_true", help="delete another run's outputs in --out first")
+    d.add_argument("--scene", default=None, type=T.scene, help="scene name (default: the built-in default scene)")
     d.add_argument("--width", type=T.ERP_WIDTH, default=512)
-    d.add_argument("--teacher", default="sim:relative", help="depth teacher for the method's point cloud")
+    d.add_argument(
+        "--teacher", default="sim:relative", type=T.teacher_spec, help="depth teacher for the method's point cloud"
+    )
     d.add_argument("--iters", type=T.ITERS, default=300, help="training steps")
     d.add_argument("--res", type=T.LABEL_RES, default=128, help="label view size in pixels for training")
     d.set_defaults(fn=cmd_demo)
@@ -634,13 +770,17 @@ def _add_depth_options(parser: argparse.ArgumentParser) -> None:
     """--depth / --depth-scale / --depth-kind: a real panorama's true depth (see panorecon.io.depth)."""
     g = parser.add_argument_group("true depth of a real panorama")
     g.add_argument(
-        "--depth", default=None, help="true depth file (16-bit .png, .exr, .npy) of the same pixel size as the image"
+        "--depth",
+        default=None,
+        type=T.in_path,
+        help="true depth file (16-bit .png, .exr, .npy) of the same pixel size as the image",
     )
     g.add_argument(
         "--depth-scale",
         type=T.float_in(1e-9, 1e9, "depth scale"),
         default=None,
-        help="metres per stored unit (default 0.001 for 16-bit PNG, 1 for .exr/.npy)",
+        help="metres per stored unit (default 0.001 for 16-bit PNG, i.e. millimetres as Structured3D; Stanford2D3D: "
+        "1/512 = 0.001953125; Matterport3D: 1/4000 = 0.00025; 1 for .exr/.npy)",
     )
     g.add_argument(
         "--depth-kind",
@@ -665,16 +805,45 @@ USER_OS_ERRORS = {
 }
 
 
+def _option_names(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """dest -> the option as typed (``--out``; a positional by its upper-case name), over every subcommand."""
+    names = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                names.update(_option_names(sub))
+        elif action.dest not in names:
+            names[action.dest] = action.option_strings[-1] if action.option_strings else action.dest.upper()
+    return names
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Parse (options are validated here: a bad one exits 2 before any work), run, and turn every user mistake
-    into one line ``panorecon: error: ...`` with exit status 2; only panorecon's own bugs leave a traceback."""
+    """Parse (options are validated here: a bad one exits 2 before any work), refuse an output path that is an
+    input or another output (``cli_types.path_collisions``), run, and turn every user mistake into one line
+    ``panorecon: error: ...`` with exit status 2, and Ctrl-C / SIGTERM into one line with exit 130 / 143
+    (``interrupts``); only panorecon's own bugs leave a traceback."""
+    import signal
+
+    from . import interrupts
+
+    parser = build_parser()
     try:
-        args = build_parser().parse_args(argv)
+        args = parser.parse_args(argv)
     except SystemExit as e:  # --help (0) or a rejected option (2, its one line already printed)
         return e.code if isinstance(e.code, int) else 2
+    collision = T.path_collisions(vars(args), _option_names(parser))
+    if collision:
+        print(f"panorecon: error: {collision}", file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
+    old = {s: signal.getsignal(s) for s in interrupts.SIGNALS}
+    interrupts.install()
     try:
         return args.fn(args)
+    except KeyboardInterrupt as e:
+        e = e if isinstance(e, interrupts.Interrupted) else interrupts.Interrupted(signal.SIGINT)
+        print(e.line(), file=sys.stderr)
+        return e.exit_code
     except PanoreconInputError as e:
         print(f"panorecon: error: {e}", file=sys.stderr)
         return 2
@@ -684,6 +853,10 @@ def main(argv: list[str] | None = None) -> int:
         where = " -> ".join(str(f) for f in (e.filename, e.filename2) if f is not None)
         print(f"panorecon: error: {where + ': ' if where else ''}{e.strerror or e}", file=sys.stderr)
         return 2
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            for s, h in old.items():
+                signal.signal(s, h)
 
 
 if __name__ == "__main__":

@@ -333,13 +333,16 @@ def add_export_parser(subparsers) -> None:
     ex = subparsers.add_parser(
         "export", help="export pseudo-label views + a point source's cloud as a COLMAP model or a nerfstudio dataset"
     )
-    ex.add_argument("scene", help="scene name (see `panorecon scenes list`) or an ERP image path")
+    ex.add_argument("scene", type=T.scene, help="scene name (see `panorecon scenes list`) or an ERP image path")
     ex.add_argument("--source", required=True, help="point source (see `panorecon sources list`)")
-    ex.add_argument("--teacher", default=None, help="depth teacher, for sources that use one")
+    ex.add_argument("--teacher", default=None, type=T.teacher_spec, help="depth teacher, for sources that use one")
     ex.add_argument("--views", type=T.VIEWS, default=None, help="views of the point source")
     ex.add_argument("--format", dest="format", choices=FORMATS, required=True)
     ex.add_argument(
-        "--out", required=True, type=T.out_dir, help="output folder (written to a temporary folder, then renamed)"
+        "--out",
+        required=True,
+        type=T.out_dir_writing("**"),
+        help="output folder (written to a temporary folder, then renamed)",
     )
     ex.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
     ex.add_argument(

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_types import float_in, int_in, out_file
+from .cli_types import finite_vector, float_in, in_path, int_in, out_file
 from .geometry import PointCloud
 from .io import PanoreconInputError, atomic_write
 
@@ -118,22 +118,22 @@ def cmd_mesh(args) -> int:
         pc = PointCloud.load_ply(cloud)
     except (FileNotFoundError, ValueError) as e:
         raise PanoreconInputError(str(e)) from None
-    centre = tuple(float(x) for x in args.centre.split(","))
-    if len(centre) != 3:
-        raise PanoreconInputError(f"--centre {args.centre!r}: expected x,y,z in metres")
+    centre = args.centre
+    report = _report_of(cloud)
+    name = args.scene or report.get("scene")
+    # the source's protocol: a non-metric teacher's cloud is compared after its median scale (sources/run.py)
+    scale = float(report.get("points", {}).get("scale_applied", 1.0)) if not args.scene else 1.0
+    scene = None
+    if name:  # before the mesh is made or written: a bad --scene fails first
+        from .scenes import load_scene
+
+        scene = load_scene(name, 64)
     t = time.perf_counter()
     v, f, c = poisson_mesh(pc, args.depth, args.trim, centre)
     seconds = time.perf_counter() - t
     save_mesh(args.out, v, f, c)
     line = f"{cloud}: {len(pc)} points -> {len(v)} vertices, {len(f)} triangles in {seconds:.1f} s -> {args.out}"
-    report = _report_of(cloud)
-    name = args.scene or report.get("scene")
-    # the source's protocol: a non-metric teacher's cloud is compared after its median scale (sources/run.py)
-    scale = float(report.get("points", {}).get("scale_applied", 1.0)) if not args.scene else 1.0
-    if name:
-        from .scenes import load_scene
-
-        scene = load_scene(name, 64)
+    if scene is not None:
         if scene.world is None:
             line += f"; Chamfer n/a: scene {name!r} has no true mesh"
         else:
@@ -151,7 +151,7 @@ def cmd_mesh(args) -> int:
 
 def add_mesh_parser(sub: argparse._SubParsersAction) -> None:
     m = sub.add_parser("mesh", help="a triangle mesh from a point cloud (screened Poisson, pymeshlab)")
-    m.add_argument("cloud", help="a point-cloud .ply (e.g. a run's fibonacci_cloud.ply)")
+    m.add_argument("cloud", type=in_path, help="a point-cloud .ply (e.g. a run's fibonacci_cloud.ply)")
     m.add_argument("--out", required=True, type=out_file, help="output mesh .ply")
     m.add_argument("--depth", type=int_in(4, 16, "Poisson depth"), default=9, help="Poisson octree depth (default 9)")
     m.add_argument(
@@ -160,7 +160,12 @@ def add_mesh_parser(sub: argparse._SubParsersAction) -> None:
         default=0.1,
         help="drop vertices below this density quantile (default 0.1)",
     )
-    m.add_argument("--centre", default="0,0,0", help="panorama centre x,y,z in metres; normals face it")
+    m.add_argument(
+        "--centre",
+        default=(0.0, 0.0, 0.0),
+        type=finite_vector(3, "centre"),
+        help="panorama centre x,y,z in metres; normals face it",
+    )
     m.add_argument(
         "--scene",
         default=None,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_types import int_in
+from .cli_types import in_path, int_in
 from .io import PanoreconInputError
 
 COLOURS = {"source": (230, 120, 20), "pseudo-label": (40, 110, 230), "held-out": (220, 30, 60)}
@@ -168,7 +168,7 @@ def cmd_view(args) -> int:
 
 def add_view_parser(sub: argparse._SubParsersAction) -> None:
     v = sub.add_parser("view", help="look at Gaussians, clouds and cameras in the browser (viser)")
-    v.add_argument("path", help="a 3DGS point_cloud.ply, any point-cloud .ply, or a run folder")
+    v.add_argument("path", type=in_path, help="a 3DGS point_cloud.ply, any point-cloud .ply, or a run folder")
     v.add_argument("--port", type=int_in(1, 65535, "port"), default=8080, help="HTTP port (default 8080)")
     v.add_argument("--host", default="0.0.0.0", help="interface to listen on")
     v.set_defaults(fn=cmd_view)

@@ -28,6 +28,48 @@ from .suite import Suite, resolve_names
 ENGINES = ("local", "dask")
 
 
+class _Eta:
+    """Without a progress bar: one line per finished stage at most every ``every`` seconds, with the estimated
+    time left for this level (elapsed / done x remaining)."""
+
+    def __init__(self, total: int, desc: str, quiet: bool, every: float = 30.0):
+        self.total, self.desc, self.quiet, self.every = total, desc, quiet, every
+        self.n, self.t0, self.last = 0, time.perf_counter(), -math.inf
+
+    def done(self) -> None:
+        self.n += 1
+        now = time.perf_counter()
+        if self.quiet or (now - self.last < self.every and self.n < self.total):
+            return
+        self.last = now
+        left = (now - self.t0) / self.n * (self.total - self.n)
+        print(f"{self.desc}: {self.n}/{self.total} stages done, about {left:.0f} s left", flush=True)
+
+
+def check_scheduler(address: str, timeout: float = 3.0) -> None:
+    """PanoreconInputError unless ``address`` (``tcp://HOST:PORT`` or ``HOST:PORT``) is well formed and accepts a
+    TCP connection within ``timeout`` seconds (dask's own client waits 30 s, then raises a traceback)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from ..io import PanoreconInputError
+
+    hint = "start one with `dask scheduler --port PORT` (and `dask worker tcp://HOST:PORT`), or leave out --scheduler"
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host, port = None, None
+    if parts.scheme != "tcp" or not host or port is None or parts.path not in ("", "/"):
+        raise PanoreconInputError(f"--scheduler {address!r}: expected tcp://HOST:PORT; {hint}")
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as e:
+        raise PanoreconInputError(
+            f"--scheduler {address}: no Dask scheduler reachable there ({e.strerror or e}); {hint}"
+        ) from None
+
+
 def _init_worker(threads: int) -> None:
     import torch
 
@@ -75,6 +117,7 @@ def _run_tasks(
     if not tasks:
         return computed
     bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
+    eta = _Eta(len(tasks), desc, quiet=progress)  # the bar shows its own estimate
     if engine == "dask":
         from dask.distributed import Client, LocalCluster
         from dask.distributed import as_completed as dask_completed
@@ -90,6 +133,7 @@ def _run_tasks(
                 r = f.result()
                 computed |= {r["key"]} if not r["cached"] else set()
                 bar.update()
+                eta.done()
         if cluster is not None:
             cluster.close()
     else:
@@ -101,6 +145,7 @@ def _run_tasks(
                 r = f.result()
                 computed |= {r["key"]} if not r["cached"] else set()
                 bar.update()
+                eta.done()
     bar.close()
     return computed
 

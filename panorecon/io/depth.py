@@ -1,7 +1,11 @@
 """True-depth files for ERP panoramas: 16-bit PNG, OpenEXR and NPY -> ray distance in metres (float32).
 
 A depth file stores ``value * scale`` metres (``scale``: metres per stored unit; default 1 for .npy/.exr,
-0.001 for 16-bit PNG). Invalid values become NaN: 0, 65535 in a 16-bit PNG (the usual "missing" code),
+0.001 for 16-bit PNG). Integer depth is a scaled unit: panorecon assumes millimetres for a 16-bit PNG (the
+convention of Structured3D); Stanford2D3D stores 1/512 m (``--depth-scale 0.001953125``), Matterport3D 1/4000 m
+(``--depth-scale 0.00025``). A map whose median distance is outside ``PLAUSIBLE_MEDIAN_M`` for a metric scene
+gets a warning naming the likely unit and the ``--depth-scale`` that fixes it (``unit_warning``). Complex,
+boolean and object arrays are refused. Invalid values become NaN: 0, 65535 in a 16-bit PNG (the usual "missing" code),
 anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is:
 
 - ``distance``: metres along the ray from the panorama centre (panorecon's ERP depth);
@@ -11,12 +15,15 @@ anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
 import numpy as np
 
-from .files import PanoreconInputError, check_erp_shape, read_image
+from .files import PanoreconInputError, check_erp_shape, first_sentence, quiet_native_stderr, read_image
+
+log = logging.getLogger("panorecon.depth")
 
 DEPTH_KINDS = ("distance", "z")
 DEPTH_SUFFIXES = (".png", ".exr", ".npy")
@@ -24,6 +31,50 @@ PNG_DEFAULT_SCALE = 1e-3
 INVALID_AT_OR_ABOVE = 1e9
 PNG_MISSING = 65535
 _EXR_CHANNELS = ("Z", "Y", "R", "depth", "distance")
+# a metric scene's median ray distance (metres): rooms are ~1-10 m, landscapes up to a few hundred
+PLAUSIBLE_MEDIAN_M = (0.2, 1000.0)
+# the field's stored units (metres per unit), tried in this order when a median is implausible
+UNIT_CONVENTIONS = (
+    ("millimetres (Structured3D)", 1e-3),
+    ("1/512 m (Stanford2D3D)", 1 / 512),
+    ("1/4000 m (Matterport3D)", 1 / 4000),
+    ("centimetres", 1e-2),
+    ("kilometres", 1e3),
+)
+
+
+def check_depth_dtype(array: np.ndarray, what: str) -> None:
+    """Refuse what cannot be a depth: complex, boolean, object, string or structured arrays."""
+    if array.dtype.kind not in "iuf":
+        raise PanoreconInputError(
+            f"{what}: a {array.dtype} array is not a depth map (expected real numbers: float metres, or integers "
+            "in a stored unit with --depth-scale)"
+        )
+
+
+def unit_warning(distance_m: np.ndarray, scale: float, what: str) -> str | None:
+    """A warning when the median finite positive distance (metres, after ``scale`` metres per stored unit) is
+    implausible for a metric scene, naming the stored unit it looks like and the --depth-scale that fixes it;
+    None when plausible or empty."""
+    d = np.asarray(distance_m, np.float64)
+    d = d[np.isfinite(d) & (d > 0)]
+    if d.size == 0:
+        return None
+    median = float(np.median(d))
+    lo, hi = PLAUSIBLE_MEDIAN_M
+    if lo <= median <= hi:
+        return None
+    stored = median / scale
+    fits = [(name, s) for name, s in UNIT_CONVENTIONS if lo <= stored * s <= hi and not np.isclose(s, scale)]
+    hint = (
+        "; ".join(f"as {name}: --depth-scale {s:g} (median {stored * s:.3g} m)" for name, s in fits[:3])
+        if fits
+        else "no usual unit makes it plausible (a relative, unitless depth is not a true depth)"
+    )
+    return (
+        f"{what}: median ray distance {median:.4g} m (stored values x {scale:g} m) is implausible for a metric "
+        f"scene (expected {lo:g} to {hi:g} m); {hint}"
+    )
 
 
 def default_depth_scale(path: str | os.PathLike) -> float:
@@ -56,8 +107,9 @@ def read_depth_raw(path: str | os.PathLike) -> np.ndarray:
         try:
             out = np.load(path, allow_pickle=False)
         except (ValueError, OSError) as e:
-            raise PanoreconInputError(f"{path}: not a readable .npy depth map ({e})") from None
-        if out.ndim != 2 or not np.issubdtype(out.dtype, np.number):
+            raise PanoreconInputError(f"{path}: not a readable .npy depth map ({first_sentence(e)})") from None
+        check_depth_dtype(out, str(path))
+        if out.ndim != 2:
             raise PanoreconInputError(f"{path}: expected a 2-D numeric depth map, got {out.dtype} {out.shape}")
         out = out.astype(np.float64)
     out[~np.isfinite(out) | (out <= 0) | (out >= INVALID_AT_OR_ABOVE)] = np.nan
@@ -73,10 +125,10 @@ def _read_exr(path: Path) -> np.ndarray:
             "pip install 'panorecon[exr]' (or pip install openexr)"
         ) from None
     try:
-        with OpenEXR.File(str(path)) as f:
+        with quiet_native_stderr(), OpenEXR.File(str(path)) as f:  # the library prints its own complaint
             channels = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
     except Exception as e:  # OpenEXR raises bare exceptions for truncated or foreign files
-        raise PanoreconInputError(f"{path}: not a readable EXR file ({e})") from None
+        raise PanoreconInputError(f"{path}: not a readable EXR file ({first_sentence(e)})") from None
     name = next((n for n in _EXR_CHANNELS if n in channels), None)
     if name is None and len(channels) == 1:
         name = next(iter(channels))
@@ -86,6 +138,7 @@ def _read_exr(path: Path) -> np.ndarray:
             f"(expected one of {', '.join(_EXR_CHANNELS)} or a single channel)"
         )
     data = channels[name]
+    check_depth_dtype(data, f"{path} channel {name}")
     if data.ndim == 3:  # an RGB(A) layer stored as one channel of pixel tuples: its first component
         data = data[..., 0]
     return data.astype(np.float64)
@@ -116,4 +169,7 @@ def read_erp_depth(path: str | os.PathLike, scale: float | None = None, kind: st
         d = d * erp_z_to_distance_factor(*d.shape)
     if not np.isfinite(d).any():
         raise PanoreconInputError(f"{path}: the depth map has no valid pixel (all 0, 65535, NaN, negative or >= 1e9)")
+    warning = unit_warning(d, scale, str(path))
+    if warning:
+        log.warning("WARNING: %s", warning)
     return d.astype(np.float32)

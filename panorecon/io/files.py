@@ -90,9 +90,20 @@ def read_image(path: str | os.PathLike, *, erp: bool = False, unchanged: bool = 
     if not path.is_file():
         raise PanoreconInputError(f"{path}: no such file")
     flags = cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR
+    size = image_size(path)  # from the header: an oversized image is refused before it is decoded
+    if size is not None and erp:
+        check_erp_shape(size[::-1], str(path))
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise PanoreconInputError(
+            f"{path}: {size[0]}x{size[1]} pixels is more than the {MAX_IMAGE_PIXELS} an image may have "
+            "(OpenCV's CV_IO_MAX_IMAGE_PIXELS)"
+        )
     data = np.fromfile(str(path), dtype=np.uint8)
-    with quiet_native_stderr():  # libpng/libjpeg print their own complaint about a broken file
-        img = cv2.imdecode(data, flags) if data.size else None
+    try:
+        with quiet_native_stderr():  # libpng/libjpeg print their own complaint about a broken file
+            img = cv2.imdecode(data, flags) if data.size else None
+    except cv2.error as e:  # OpenCV's own limits (e.g. pixel count) raise with a multi-line message
+        raise PanoreconInputError(f"{path}: OpenCV cannot decode it ({first_sentence(e)})") from None
     if img is None:
         raise PanoreconInputError(f"{path}: not a readable image (unknown format, truncated or empty file)")
     if not unchanged or (img.ndim == 3 and img.shape[2] == 3):
@@ -100,6 +111,33 @@ def read_image(path: str | os.PathLike, *, erp: bool = False, unchanged: bool = 
     if erp:
         check_erp_shape(img.shape[:2], str(path))
     return img
+
+
+def first_sentence(error: BaseException, limit: int = 160) -> str:
+    """A third-party exception's message folded to one line: its first line, cut after the first sentence when
+    longer than ``limit`` characters (torch and OpenCV append pages of advice)."""
+    text = str(error).strip()
+    line = text.splitlines()[0].strip() if text else type(error).__name__
+    if len(line) > limit and ". " in line:
+        line = line[: line.index(". ") + 1]
+    return line
+
+
+MAX_IMAGE_PIXELS = 1 << 30  # OpenCV's default CV_IO_MAX_IMAGE_PIXELS
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """(width, height) from an image file's header (Pillow reads no pixel), or None when Pillow cannot tell."""
+    from PIL import Image
+
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # only the size is read; limits are ours
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except Exception:  # noqa: BLE001 -- any format Pillow does not know: OpenCV decides
+        return None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
 
 
 def check_erp_shape(hw: tuple[int, int], what: str) -> None:

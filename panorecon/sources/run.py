@@ -15,6 +15,10 @@ from ..teachers import get_teacher, seeded_teacher
 from ..teachers.base import true_view_distance
 from .registry import get_source
 
+# metrics on fewer valid pixels / points than these read "n/a: <reason>": a handful of samples measures nothing
+MIN_METRIC_PIXELS = 100
+MIN_METRIC_POINTS = 100
+
 
 def _per_view_abs_rel(scene, view_depths) -> float:
     """Median over views of each view's own AbsRel against its true distance: median-aligned per view for
@@ -161,8 +165,13 @@ def run_source(
         scale = 1.0
         if distance is not None:
             dm = depth_metrics(distance, scene.distance, "none" if metric else "median", ~scene.sky)
-            scale = dm["scale"] if math.isfinite(dm["scale"]) else 1.0
-            report["depth"] = _finite_or_na(dm, "no pixel with both prediction and truth")
+            few = dm["pixels"] < MIN_METRIC_PIXELS
+            scale = dm["scale"] if math.isfinite(dm["scale"]) and not few else 1.0
+            report["depth"] = (
+                f"n/a: {dm['pixels']} pixels with both prediction and truth (fewer than {MIN_METRIC_PIXELS})"
+                if few
+                else _finite_or_na(dm, "no pixel with both prediction and truth")
+            )
             report["depth_edges"] = _finite_or_na(
                 edge_depth_metrics(distance, scene.distance, scale, ~scene.sky), "no pixel near a true depth edge"
             )
@@ -175,9 +184,14 @@ def run_source(
         else:
             report["depth"] = "n/a: the source gives no depth map"
         truth = _truth_sample(scene, POINT_METRIC_SAMPLE, len(pc))
-        report["points"] = (
-            point_metrics(pc.xyz * scale, truth, max_points=POINT_METRIC_SAMPLE) if len(pc) else {"count": 0}
-        )
+        if min(len(pc), len(truth)) < MIN_METRIC_POINTS:
+            reason = f"n/a: {len(pc)} points against {len(truth)} true points (fewer than {MIN_METRIC_POINTS})"
+            report["points"] = {
+                "count": len(pc),
+                **{k: reason for k in ("accuracy", "completeness", "chamfer", "fscore")},
+            }
+        else:
+            report["points"] = point_metrics(pc.xyz * scale, truth, max_points=POINT_METRIC_SAMPLE)
         report["points"]["scale_applied"] = scale
         if info.get("view_depths"):
             report["teacher_per_view_abs_rel_median"] = _per_view_abs_rel(scene, info["view_depths"])

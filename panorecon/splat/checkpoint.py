@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from ..io import PanoreconInputError, atomic_write
+from ..io.files import first_sentence
 
 log = logging.getLogger("panorecon.train")
 
@@ -63,7 +64,7 @@ def load_checkpoint(path: Path, inputs: dict, iters: int) -> dict | None:
         state = torch.load(path, map_location="cpu", weights_only=True)
         problem = _malformed(state, iters)
     except (RuntimeError, EOFError, OSError, ValueError, pickle.UnpicklingError, zipfile.BadZipFile) as e:
-        problem = f"unreadable: {str(e).splitlines()[0] if str(e) else type(e).__name__}"
+        problem = f"unreadable: {first_sentence(e)}"
     if problem is not None:
         bad = path.with_name(path.name + ".bad")
         path.replace(bad)

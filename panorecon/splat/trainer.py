@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import interrupts
 from ..device import device_record, reset_peak_memory, resolve_device, synchronize
 from ..geometry import PointCloud
 from ..io import peak_rss_mb, write_image, write_json
@@ -380,7 +381,25 @@ def train(
     gen = np.random.default_rng(cfg.seed)
     order = gen.integers(0, len(labels), size=cfg.iters)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
-    for it in bar:
+
+    def checkpoint(iteration: int) -> str:
+        """ckpt.pt after ``iteration`` steps (model, optimizer, strategy, history, generator states) -> its path."""
+        rng = {"rng": torch.get_rng_state()}
+        if dev.type == "cuda":
+            rng["cuda_rng"] = torch.cuda.get_rng_state(dev)
+        state = {
+            "iteration": iteration,
+            "history": history,
+            "optimizer": opt.state_dict(),
+            "strategy": strategy.state_dict(),
+            **rng,
+            "model": {n: p.detach() for n, p in model.named_parameters()},
+        }
+        save_checkpoint(ckpt, keys, state)
+        return str(ckpt)
+
+    # Ctrl-C / SIGTERM wait for a step boundary, where a checkpoint is written to resume from (see interrupts)
+    for it in interrupts.at_step_boundaries(bar, cfg.iters, checkpoint):
         if it == fill_step:  # behind a surface that is opaque by now: the centre's labels no longer see it
             keep = torch.ones(len(model), dtype=torch.bool, device=dev)
             edit_parameters(model, opt, keep, {n: getattr(late_fill, n).detach() for n in PARAM_NAMES})
@@ -443,21 +462,7 @@ def train(
             history_s += time.perf_counter() - te
             bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
         if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
-            rng = {"rng": torch.get_rng_state()}
-            if dev.type == "cuda":
-                rng["cuda_rng"] = torch.cuda.get_rng_state(dev)
-            save_checkpoint(
-                ckpt,
-                keys,
-                {
-                    "iteration": it + 1,
-                    "history": history,
-                    "optimizer": opt.state_dict(),
-                    "strategy": strategy.state_dict(),
-                    **rng,
-                    "model": {n: p.detach() for n, p in model.named_parameters()},
-                },
-            )
+            checkpoint(it + 1)
     synchronize(dev)
     seconds["train"] = time.perf_counter() - t - history_s
     seconds["history"] = history_s

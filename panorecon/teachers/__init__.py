@@ -15,7 +15,10 @@ from .sim import PROFILES, SimProfile, SimTeacher
 def get_teacher(spec: str, seed: int = 0) -> Teacher:
     """Parse a teacher spec: ``sim:<profile>``, ``onnx:<model.onnx>``, ``file:<path>[?scale=S&metric=1]`` or
     ``hf:<model id or folder>[?batch=N&device=D]`` or ``moge:<checkpoint>[?batch=N&device=D]``."""
-    kind, _, arg = spec.partition(":")
+    from ..io.specs import split_teacher_spec
+
+    kind = split_teacher_spec(spec)[0]  # unknown kinds and option keys refused here
+    arg = spec.partition(":")[2]  # each teacher parses its own options (with the same table)
     if kind == "sim":
         if arg not in PROFILES:
             raise PanoreconInputError(

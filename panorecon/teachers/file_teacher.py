@@ -3,39 +3,39 @@
 A 16-bit PNG holds distance in units of ``scale`` metres (HoHoNet's ``*.pred_depth_mm.png``: scale=0.001;
 0 = unknown); a ``.npy`` holds float metres (scale multiplies it). The map must be 2:1. Views sample it
 with nearest-neighbour lookups along their rays.
+
+Size rule: a map of another width than the scene's ERP is resampled to it by nearest neighbour when it is at
+least half as wide (``MAX_UPSAMPLE`` = 2); a narrower map is refused, as a few depth pixels stretched over a
+panorama are no teacher. With ``metric=1`` a median distance implausible for a metric scene gets the same
+unit warning as a true depth (``io.depth.unit_warning``).
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
-from urllib.parse import parse_qs
 
 import cv2
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, sample_erp
 from ..io import PanoreconInputError, read_image
+from ..io.depth import check_depth_dtype, unit_warning
 from ..io.files import check_erp_shape
+from ..io.specs import TEACHER_OPTIONS, parse_options
 from .base import ErpDepth
+
+MAX_UPSAMPLE = 2
+log = logging.getLogger("panorecon.teacher")
 
 
 class FileTeacher:
     def __init__(self, spec: str):
         path, _, query = spec.partition("?")
-        opts = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
-        unknown = set(opts) - {"scale", "metric"}
-        if unknown:
-            raise PanoreconInputError(
-                f"teacher file:{spec}: unknown option(s) {sorted(unknown)}; expected scale=, metric="
-            )
-        try:
-            self.scale = float(opts.get("scale", 1.0))
-        except ValueError:
-            raise PanoreconInputError(f"teacher file:{spec}: scale={opts['scale']!r} is not a number") from None
-        if not (np.isfinite(self.scale) and self.scale > 0):
-            raise PanoreconInputError(f"teacher file:{spec}: scale must be a positive number")
-        self.metric = opts.get("metric", "0").lower() in ("1", "true", "yes")
+        opts = parse_options(f"teacher file:{spec}", query, TEACHER_OPTIONS["file"])
+        self.scale = opts.get("scale", 1.0)
+        self.metric = opts.get("metric", False)
         self.path = Path(path)
         self.name = f"file:{spec}"
         self._distance = self._load()
@@ -45,9 +45,11 @@ class FileTeacher:
             if not self.path.is_file():
                 raise PanoreconInputError(f"{self.path}: no such file")
             try:
-                raw = np.load(self.path).astype(np.float64)
+                raw = np.load(self.path, allow_pickle=False)
             except (ValueError, OSError) as e:
                 raise PanoreconInputError(f"{self.path}: not a readable .npy depth map ({e})") from None
+            check_depth_dtype(raw, str(self.path))
+            raw = raw.astype(np.float64)
             if raw.ndim != 2:
                 raise PanoreconInputError(f"{self.path}: expected a 2-D depth map, got shape {raw.shape}")
             check_erp_shape(raw.shape, str(self.path))
@@ -67,15 +69,29 @@ class FileTeacher:
                 f"{self.path}: holds no valid depth (every value is 0, NaN, Inf or negative); "
                 "expected positive ray distances"
             )
+        warning = unit_warning(d, self.scale, f"teacher file:{self.path}") if self.metric else None
+        if warning:
+            log.warning("WARNING: %s", warning)
         return d
 
+    def _check_size(self, scene) -> None:
+        w = self._distance.shape[1]
+        if w * MAX_UPSAMPLE < scene.width:
+            raise PanoreconInputError(
+                f"teacher file:{self.path}: the depth map is {w}x{w // 2} but the scene is {scene.width}x"
+                f"{scene.height}; a map narrower than 1/{MAX_UPSAMPLE} of the scene's width is refused (give "
+                f"a map at least {-(-scene.width // MAX_UPSAMPLE)} px wide, or a smaller --width)"
+            )
+
     def _for(self, scene) -> np.ndarray:
+        self._check_size(scene)
         d = self._distance
         if d.shape != (scene.height, scene.width):
             d = cv2.resize(d, (scene.width, scene.height), interpolation=cv2.INTER_NEAREST)
         return d
 
     def predict_views(self, scene, cameras: Sequence[PinholeCamera]) -> list[ViewDepth]:
+        self._check_size(scene)
         views = []
         for cam in cameras:
             d = sample_erp(self._distance, cam.world_rays(), "nearest")

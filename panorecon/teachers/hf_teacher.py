@@ -17,12 +17,12 @@ import importlib.util
 import inspect
 from collections.abc import Sequence
 from dataclasses import dataclass
-from urllib.parse import parse_qs
 
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, erp_to_perspective
 from ..io import PanoreconInputError
+from ..io.specs import TEACHER_OPTIONS, parse_options
 from .base import ErpDepth, batches_by_size, sky_of_view, view_fov_deg
 
 
@@ -90,20 +90,10 @@ class HFTeacher:
 
     def __init__(self, spec: str, progress: bool = True):
         source, _, query = spec.partition("?")
-        opts = {k: v[-1] for k, v in parse_qs(query).items()}
-        if set(opts) - {"batch", "device"}:
-            raise PanoreconInputError(
-                f"teacher hf:{spec}: unknown option(s) {sorted(set(opts) - {'batch', 'device'})};"
-                " expected batch=, device="
-            )
+        opts = parse_options(f"teacher hf:{spec}", query, TEACHER_OPTIONS["hf"])
         if not source:
             raise PanoreconInputError("teacher hf:: expected hf:<model id or local folder>")
-        try:
-            self.batch = int(opts.get("batch", 8))
-        except ValueError:
-            self.batch = 0
-        if self.batch < 1:
-            raise PanoreconInputError(f"teacher hf:{spec}: batch={opts['batch']!r} must be a positive integer")
+        self.batch = opts.get("batch", 8)
         try:
             import torch
             from transformers import AutoConfig, AutoImageProcessor, AutoModelForDepthEstimation

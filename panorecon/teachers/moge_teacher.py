@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from urllib.parse import parse_qs
 
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, erp_to_perspective
 from ..io import PanoreconInputError
+from ..io.files import first_sentence
+from ..io.specs import TEACHER_OPTIONS, parse_options
 from .base import ErpDepth, batches_by_size, sky_of_view, view_fov_deg
 from .hf_teacher import OutputKind
 
@@ -38,20 +39,15 @@ class MoGeTeacher:
 
     def __init__(self, spec: str, progress: bool = True):
         source, _, query = spec.partition("?")
-        opts = {k: v[-1] for k, v in parse_qs(query).items()}
-        if set(opts) - {"batch", "device"} or not source:
+        opts = parse_options(f"teacher moge:{spec}", query, TEACHER_OPTIONS["moge"])
+        if not source:
             raise PanoreconInputError(f"teacher moge:{spec}: expected moge:<checkpoint>[?batch=N&device=cpu|cuda]")
         try:
             import torch
             from moge.model import v1, v2
         except ImportError:
             raise PanoreconInputError(f"the moge teacher needs MoGe's package: {INSTALL}") from None
-        try:
-            self.batch = int(opts.get("batch", 4))
-        except ValueError:
-            self.batch = 0
-        if self.batch < 1:
-            raise PanoreconInputError(f"teacher moge:{spec}: batch={opts['batch']!r} must be a positive integer")
+        self.batch = opts.get("batch", 4)
         device = opts.get("device", "cuda" if torch.cuda.is_available() else "cpu")
         if device not in ("cpu", "cuda") or (device == "cuda" and not torch.cuda.is_available()):
             raise PanoreconInputError(
@@ -63,7 +59,9 @@ class MoGeTeacher:
             ckpt = torch.load(path, map_location="cpu", weights_only=True)
             config, state = ckpt["model_config"], ckpt["model"]
         except Exception as e:  # noqa: BLE001 -- any unreadable file is the user's input
-            raise PanoreconInputError(f"teacher moge:{source}: {path} is not a MoGe checkpoint ({e})") from None
+            raise PanoreconInputError(
+                f"teacher moge:{source}: {path} is not a MoGe checkpoint ({first_sentence(e)})"
+            ) from None
         self.version, self.output = moge_output_kind(config)
         model = (v2 if self.version == 2 else v1).MoGeModel(**config)
         missing = model.load_state_dict(state, strict=False).missing_keys

@@ -15,8 +15,13 @@ def add_generate_parser(sub) -> None:
     what = g.add_mutually_exclusive_group(required=True)
     what.add_argument("--prompt", help="scene description (the panorama trigger phrase is prepended)")
     what.add_argument("--preset", choices=sorted(PRESETS), help="one of the paper's Table 1 prompts")
-    g.add_argument("--model", required=True, help="local diffusers folder, or a model id already in the local HF cache")
-    g.add_argument("--lora", default=None, help="LoRA weights (loaded with diffusers' own loader)")
+    g.add_argument(
+        "--model",
+        required=True,
+        type=T.in_path,
+        help="local diffusers folder, or a model id already in the local HF cache",
+    )
+    g.add_argument("--lora", default=None, type=T.in_path, help="LoRA weights (loaded with diffusers' own loader)")
     g.add_argument("--steps", type=T.STEPS, default=50)
     g.add_argument("--seed", type=T.SEED, default=0)
     g.add_argument("--width", type=T.ERP_WIDTH, default=2048, help="panorama width (height = width / 2)")
