@@ -31,6 +31,7 @@ CLASH = "an output may not overwrite"
 # one valid argument set per subcommand: positional values, then options (all paths inside the workspace)
 BASE: dict[tuple[str, ...], tuple[list[str], dict[str, str | None]]] = {
     ("scenes", "list"): ([], {"--root": W}),
+    ("scenes", "check"): ([W], {"--json": f"{W}/check.json"}),
     ("render",): ([f"{W}/pano.png"], {"--depth": f"{W}/d.npy", "--out": f"{W}/r"}),
     ("gt-cloud",): ([f"{W}/pano.png"], {"--depth": f"{W}/d.npy", "--out": f"{W}/g.ply"}),
     ("inspect",): ([f"{W}/cloud.ply"], {"--screenshot": f"{W}/s.png", "--clip-z": "1"}),
@@ -60,7 +61,7 @@ BASE: dict[tuple[str, ...], tuple[list[str], dict[str, str | None]]] = {
             "--out": f"{W}/t",
         },
     ),
-    ("ablate",): ([f"{W}/suite.toml"], {"--out": f"{W}/a", "--cache": f"{W}/cache"}),
+    ("ablate",): ([f"{W}/suite.toml"], {"--out": f"{W}/a", "--cache": f"{W}/cache", "--from-csv": f"{W}/r.csv"}),
     ("bench",): ([], {"--suite": f"{W}/suite.toml", "--baseline": f"{W}/baseline.json", "--out": f"{W}/b.json"}),
     ("generate",): ([], {"--prompt": "a room", "--model": f"{W}/model", "--out": f"{W}/gen.png"}),
     ("export",): (
@@ -221,6 +222,7 @@ def workspace(tmp_path_factory):
     )
     (w / "suite.toml").write_text('title = "t"\nrows = ["source"]\n[grid]\nscene = ["bedroom"]\nsource = ["random"]\n')
     (w / "baseline.json").write_text("{}")
+    (w / "r.csv").write_text("scene,seed,label\nbedroom,0,random\n")
     (w / "model").mkdir()
     (w / "ro").mkdir(mode=0o555)
     (w / "ro.out").write_text("keep")
