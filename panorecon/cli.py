@@ -826,17 +826,24 @@ def main(argv: list[str] | None = None) -> int:
 
     from . import interrupts
 
-    parser = build_parser()
+    old = {s: signal.getsignal(s) for s in interrupts.SIGNALS}
+    interrupts.install()
     try:
+        parser = build_parser()
         args = parser.parse_args(argv)
     except SystemExit as e:  # --help (0) or a rejected option (2, its one line already printed)
         return e.code if isinstance(e.code, int) else 2
+    except KeyboardInterrupt as e:
+        e = e if isinstance(e, interrupts.Interrupted) else interrupts.Interrupted(signal.SIGINT)
+        print(e.line(), file=sys.stderr)
+        return e.exit_code
+    finally:
+        _restore(old)
     collision = T.path_collisions(vars(args), _option_names(parser))
     if collision:
         print(f"panorecon: error: {collision}", file=sys.stderr)
         return 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
-    old = {s: signal.getsignal(s) for s in interrupts.SIGNALS}
     interrupts.install()
     try:
         return args.fn(args)
@@ -854,9 +861,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"panorecon: error: {where + ': ' if where else ''}{e.strerror or e}", file=sys.stderr)
         return 2
     finally:
-        if threading.current_thread() is threading.main_thread():
-            for s, h in old.items():
-                signal.signal(s, h)
+        _restore(old)
+
+
+def _restore(handlers: dict) -> None:
+    """Put back the signal handlers main() found (in-process callers, e.g. tests, keep theirs)."""
+    import signal
+
+    if threading.current_thread() is threading.main_thread():
+        for s, h in handlers.items():
+            signal.signal(s, h)
 
 
 if __name__ == "__main__":

@@ -67,7 +67,7 @@ def unit_warning(distance_m: np.ndarray, scale: float, what: str) -> str | None:
     stored = median / scale
     fits = [(name, s) for name, s in UNIT_CONVENTIONS if lo <= stored * s <= hi and not np.isclose(s, scale)]
     hint = (
-        "; ".join(f"as {name}: --depth-scale {s:g} (median {stored * s:.3g} m)" for name, s in fits[:3])
+        "; ".join(f"as {name}: --depth-scale {s:g} (median {stored * s:.3g} m)" for name, s in fits)
         if fits
         else "no usual unit makes it plausible (a relative, unitless depth is not a true depth)"
     )
