@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from ..io import atomic_write
@@ -447,31 +448,52 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
 
 def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") -> None:
     """Held-out PSNR against training seconds, one line per run (colour: label, line style: scene; a label and
-    scene's seeds share both and one legend entry), from the ``history_heldout`` column ("seconds:psnr;...")."""
+    scene's seeds share both and one legend entry), from the ``history_heldout`` column ("seconds:psnr;...").
+    With several seeds the runs are drawn faint and each label gets its mean over scenes and seeds at each
+    evaluation (at the runs' mean seconds) with the 95 % band over seeds (``stats.these_scenes``)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .stats import these_scenes
+
+    frame = with_seed(frame)
+    seeded = frame.groupby(["label", "scene"])["seed"].nunique().max() > 1
     fig, ax = plt.subplots(figsize=(7.5, 5))
     labels = list(dict.fromkeys(frame["label"]))
     scenes = list(dict.fromkeys(frame["scene"])) if "scene" in frame else [None]
     seen: set = set()
+    curves = {}
     for _, r in frame.iterrows():
         pts = [tuple(map(float, kv.split(":"))) for kv in str(r["history_heldout"]).split(";")]
+        curves.setdefault(r["label"], []).append((r.get("scene"), pts))
         k, s = labels.index(r["label"]), scenes.index(r.get("scene"))
         ax.plot(
             [p[0] for p in pts],
             [p[1] for p in pts],
             color=f"C{k % 10}",
             ls=("-", "--", ":", "-.")[s % 4],
+            alpha=0.3 if seeded else 1.0,
+            lw=0.8 if seeded else 1.5,
             label="_nolegend_"
             if (k, s) in seen
             else f"{r['label']}" + (f" / {r['scene']}" if r.get("scene") is not None else ""),
         )
         seen.add((k, s))
+    for label, runs in curves.items() if seeded else ():
+        if len({len(pts) for _, pts in runs}) != 1:  # evaluated at different steps: no common points
+            continue
+        at = range(len(runs[0][1]))
+        xs = [float(np.mean([pts[i][0] for _, pts in runs])) for i in at]
+        ivs = [
+            these_scenes(pd.DataFrame({"scene": [s for s, _ in runs], "value": [p[i][1] for _, p in runs]})) for i in at
+        ]
+        colour = f"C{labels.index(label) % 10}"
+        ax.plot(xs, [iv.estimate for iv in ivs], color=colour, lw=2.2, label=f"{label}: mean, 95 % band")
+        ax.fill_between(xs, [iv.low for iv in ivs], [iv.high for iv in ivs], color=colour, alpha=0.15)
     ax.set(xlabel="training seconds", ylabel="held-out PSNR (dB)", title=title)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=6 if seeded else 7, ncol=2 if seeded else 1)
     fig.tight_layout()
     with atomic_write(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110)
