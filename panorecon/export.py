@@ -19,8 +19,8 @@ gsplat's simple_trainer, the original 3DGS), and the label views share one centr
 a spread of 0 gives OpenSplat NaN Gaussians, nerfstudio a ZeroDivisionError and gsplat/3DGS frozen means and a
 scene pruned to nothing. So when the label views span no baseline the export adds two *scale anchors*
 (``scale_anchors``): views on the vertical axis at about the cloud's extent (its 90th-percentile distance, the
-extent panorecon's own trainer scales its learning rate by), beyond every point and looking away from them, with
-black images. They see no point, so they give no Gaussian a gradient, but their baseline makes every consumer's
+extent panorecon's own trainer scales its learning rate by), looking away from the cloud with no point in view,
+with black images. They see no point, so they give no Gaussian a gradient, but their baseline makes every consumer's
 scene size the cloud's extent. ``export.json`` and ``README.txt`` give each consumer's scale and its command.
 
 Everything is written into a temporary folder beside ``out_dir`` and renamed into place at the end.
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import shutil
 import tempfile
@@ -46,7 +47,7 @@ FORMATS = ("colmap", "nerfstudio")
 IMAGE_FORMATS = ("png", "jpg")
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])  # camera axes (x right, y down, z fwd) -> (x right, y up, z back)
 EXTENT_PERCENTILE = 90.0  # the cloud's extent: this percentile of its points' distances from the label centre
-ANCHOR_MARGIN = 0.05  # anchors sit at least this fraction of the extent beyond the cloud's highest / lowest point
+ANCHOR_MARGIN = 0.05  # anchors sit this fraction of the extent beyond the height where they would see a point
 NO_BASELINE = 1e-3  # label views spread by less than this fraction of the extent span "no baseline"
 
 
@@ -73,12 +74,15 @@ def cloud_extent(cloud: PointCloud, centre: np.ndarray) -> float:
 
 def scale_anchors(cloud: PointCloud, centre: np.ndarray, extent: float, size: int, fov_deg: float):
     """Two views at ``centre`` + (0, 0, +a) looking up and ``centre`` - (0, 0, b) looking down, a and b the
-    ``extent`` or, where the cloud reaches further, its highest / lowest point plus ``ANCHOR_MARGIN`` x extent:
-    every point is behind them, so their true image is empty -> ([PinholeCamera] x 2, ["anchor_up",
-    "anchor_down"])."""
-    z = cloud.xyz[:, 2].astype(np.float64) - centre[2]
+    ``extent`` or, where the cloud reaches into that view, the lowest height at which no point lies inside the cone
+    around the square view (half-angle atan(sqrt 2 tan(fov / 2))) plus ``ANCHOR_MARGIN`` x extent: their true
+    image is empty -> ([PinholeCamera] x 2, ["anchor_up", "anchor_down"])."""
+    p = cloud.xyz.astype(np.float64) - centre
+    cone = math.tan(math.radians(fov_deg) / 2) * math.sqrt(2)  # a point is seen only if r < (height above - a) cone
+    r = np.hypot(p[:, 0], p[:, 1])
     margin = ANCHOR_MARGIN * extent
-    up, down = max(extent, float(z.max()) + margin), max(extent, float(-z.min()) + margin)
+    up = max(extent, float((p[:, 2] - r / cone).max()) + margin)
+    down = max(extent, float((-p[:, 2] - r / cone).max()) + margin)
     cams = [
         centred_camera(np.array([0.0, 0.0, 1.0]), size, fov_deg, centre + [0.0, 0.0, up]),
         centred_camera(np.array([0.0, 0.0, -1.0]), size, fov_deg, centre - [0.0, 0.0, down]),
@@ -242,7 +246,7 @@ def export_scene(
             f"{extent:.3f}): OpenSplat, nerfstudio, gsplat and 3DGS size the scene by the cameras' spread, which "
             "would be 0 (OpenSplat: scale 1/0 and NaN Gaussians; nerfstudio: ZeroDivisionError; gsplat, 3DGS: "
             "frozen means and every Gaussian pruned as too big). Added 2 scale-anchor views at z = "
-            f"{heights} from the centre, black, looking away from every point: each consumer's scene size is "
+            f"{heights} from the centre, black, looking away with no point in view: each consumer's scene size is "
             "now about the cloud's extent (README.txt)"
         )
     c2w = np.stack([np.linalg.inv(c.viewmat) for c in cameras])
@@ -312,7 +316,7 @@ def _readme(report: dict) -> str:
             "Scale anchors: " + ", ".join(report["anchors"]),
             "  Every consumer below sizes the scene by its cameras' spread; the label views share one centre",
             "  (their colours are only true there), so a spread of 0 would break them all. The two anchors sit on",
-            "  the vertical axis at about the cloud's extent, beyond every point and looking away from it: their",
+            "  the vertical axis at about the cloud's extent, looking away from it with no point in view: their",
             "  true image is empty (black), they give no Gaussian a gradient, and their baseline makes each",
             "  consumer's scene size the cloud's extent. Leave them in; drop them only with views of your own",
             "  that span a baseline.",

@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from panorecon.export import add_export_parser, export_scene, viewmat_from_c2w_opengl
+from panorecon.geometry import PointCloud
 from panorecon.io import PanoreconInputError
 from panorecon.scenes.synthetic import build_scene
 from panorecon.splat.labels import make_pseudo_labels
@@ -212,16 +213,47 @@ def test_label_views_alone_are_degenerate(scene):
     )
 
 
-def test_anchors_see_no_point_and_are_black(scene, cloud, tmp_path):
-    out = export_scene(scene, cloud, VIEWS, "nerfstudio", tmp_path / "n", view_size=SIZE)
+def _seen(cloud_xyz, w2c, K, size) -> np.ndarray:
+    p = cloud_xyz @ w2c[:3, :3].T + w2c[:3, 3]
+    front = p[:, 2] > 0
+    uv = p[front, :2] / p[front, 2:] @ K[:2, :2].T + K[:2, 2]
+    return ((uv >= 0) & (uv <= size)).all(1)
+
+
+@pytest.mark.parametrize("lift", [0.0, 40.0])
+def test_anchors_see_no_point_and_are_black(scene, cloud, tmp_path, lift):
+    """Also with a far point lifted high above the centre (a tall tree or a cliff seen at a distance)."""
+    xyz = cloud.xyz.copy()
+    far = int(np.argmax(np.hypot(xyz[:, 0], xyz[:, 1])))
+    xyz[far, 2] += lift
+    pc = PointCloud(xyz, cloud.rgb)
+    out = export_scene(scene, pc, VIEWS, "nerfstudio", tmp_path / "n", view_size=SIZE)
     meta = json.loads((out / "transforms.json").read_text())
+    K = np.array([[meta["fl_x"], 0, meta["cx"]], [0, meta["fl_y"], meta["cy"]], [0, 0, 1]])
     anchors = [f for f in meta["frames"] if "anchor" in f["file_path"]]
     assert len(anchors) == 2
     for f in anchors:
         w2c = viewmat_from_c2w_opengl(np.array(f["transform_matrix"]))
-        p = cloud.xyz @ w2c[:3, :3].T + w2c[:3, 3]
-        assert (p[:, 2] < 0).all()  # every point behind the anchor: it sees nothing
+        assert not _seen(pc.xyz, w2c, K, SIZE).any()
+        assert _seen(pc.xyz, np.diag([1.0, -1.0, -1.0, 1.0]) @ w2c, K, SIZE).any()  # turned round, it sees the cloud
         assert not np.asarray(iio.imread(out / f["file_path"])).any()
+        c = np.linalg.inv(w2c)[:3, 3]
+        extent = json.loads((out / "export.json").read_text())["cloud_extent"]
+        if (
+            abs(c[2]) > extent * 1.001
+        ):  # raised above the extent only as far as needed: 10 % lower, a point is in its cone
+            lowered = w2c.copy()
+            lowered[:3, 3] = -w2c[:3, :3] @ (c - np.sign(c[2]) * np.array([0, 0, 0.1 * extent]))
+            wide = K * [[2**-0.5], [2**-0.5], [1]]  # a view whose square holds the cone the rule keeps clear
+            wide[:2, 2] = K[:2, 2]
+            assert _seen(pc.xyz, lowered, wide, SIZE).any()
+        else:
+            assert abs(c[2]) == pytest.approx(extent)
+    if lift:
+        assert (
+            max(abs(np.linalg.inv(viewmat_from_c2w_opengl(np.array(f["transform_matrix"])))[2, 3]) for f in anchors)
+            > extent * 1.001
+        )
 
 
 def test_ply_is_float32_as_opensplat_reads_it(scene, cloud, tmp_path):
