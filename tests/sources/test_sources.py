@@ -132,3 +132,13 @@ def test_truth_sample_is_point_metrics_own_subsample():
         full = point_metrics(pred, scene.point_cloud().xyz, max_points=3000)
         fast = point_metrics(pred, _truth_sample(scene, 3000, n_pred), max_points=3000)
         assert full == fast
+
+
+def test_max_points_thins_the_cloud_evenly_and_reports_the_density():
+    scene = load_scene("bedroom", 128)
+    pc, report = run_source(scene, "fibonacci", "sim:clean", 6, None, max_points=2000)
+    assert 0.97 * 2000 <= len(pc) <= 2000 == report["thinning"]["max_points"]
+    assert report["thinning"]["points"] == len(pc) == report["points"]["count"]
+    assert report["thinning"]["spacing_deg"] > 0 and "thinning" in report["seconds"]
+    full, rep_full = run_source(scene, "fibonacci", "sim:clean", 6, None)
+    assert "thinning" not in rep_full and len(full) > 4 * len(pc)
