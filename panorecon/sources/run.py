@@ -58,21 +58,22 @@ def _per_view_abs_rel(scene, view_depths) -> float:
 POINT_METRIC_SAMPLE = 200_000  # points of each cloud the point metrics compare (point_metrics' default)
 
 
-def _truth_sample(scene, n: int, n_pred: int, seed: int = 0) -> np.ndarray:
-    """[<= n, 3] float32: the true points ``point_metrics(pred, scene.point_cloud().xyz, max_points=n, seed=seed)``
-    would subsample the whole true cloud to (the same draws: the prediction's ``n_pred`` first, then the truth's
-    valid pixels in row-major order), back-projected alone: the full-size true cloud is never built."""
+def _metric_samples(scene, pred: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The predicted and true points ``point_metrics(pred, scene.point_cloud().xyz, max_points=n, seed=seed)``
+    would subsample to (the same draws: the prediction's first, then the truth's valid pixels in row-major
+    order) -> ([<= n, 3], [<= n, 3] float32); neither the full true cloud nor a scaled copy of the prediction is
+    built."""
+    rng = np.random.default_rng(seed)
+    if len(pred) > n:
+        pred = pred[rng.choice(len(pred), n, replace=False)]
     flat = np.flatnonzero(scene.valid)
     if len(flat) > n:
-        rng = np.random.default_rng(seed)
-        if n_pred > n:
-            rng.choice(n_pred, n, replace=False)  # point_metrics draws the prediction's subsample first
         flat = flat[rng.choice(len(flat), n, replace=False)]
     keep = np.zeros(scene.valid.shape, bool)
     keep.ravel()[flat] = True
     xyz = back_project_erp(scene.distance, keep, scene.rgb)[0]
     order = np.argsort(np.argsort(flat))  # back_project_erp returns row-major order: back to the draw's order
-    return xyz[order]
+    return pred, xyz[order]
 
 
 def _finite_or_na(d: dict, reason: str) -> dict:
@@ -183,15 +184,15 @@ def run_source(
                 )
         else:
             report["depth"] = "n/a: the source gives no depth map"
-        truth = _truth_sample(scene, POINT_METRIC_SAMPLE, len(pc))
-        if min(len(pc), len(truth)) < MIN_METRIC_POINTS:
+        pred, truth = _metric_samples(scene, pc.xyz, POINT_METRIC_SAMPLE)
+        if min(len(pred), len(truth)) < MIN_METRIC_POINTS:
             reason = f"n/a: {len(pc)} points against {len(truth)} true points (fewer than {MIN_METRIC_POINTS})"
             report["points"] = {
                 "count": len(pc),
                 **{k: reason for k in ("accuracy", "completeness", "chamfer", "fscore")},
             }
         else:
-            report["points"] = point_metrics(pc.xyz * scale, truth, max_points=POINT_METRIC_SAMPLE)
+            report["points"] = {**point_metrics(pred * scale, truth, max_points=POINT_METRIC_SAMPLE), "count": len(pc)}
         report["points"]["scale_applied"] = scale
         if info.get("view_depths"):
             report["teacher_per_view_abs_rel_median"] = _per_view_abs_rel(scene, info["view_depths"])

@@ -85,3 +85,19 @@ def test_edge_mask_marks_pixels_near_a_depth_step_and_the_sky():
     pred[:, 19] = 3.0  # a flying column at the step
     e = edge_depth_metrics(pred, truth, 1.0)
     assert e["edge_abs_rel"] > 0 and edge_depth_metrics(truth, truth, 1.0)["edge_abs_rel"] == 0.0
+
+
+@pytest.mark.parametrize("align", ["median", "none", "inverse-affine"])
+def test_depth_metrics_in_chunks_equal_one_piece(monkeypatch, align):
+    import panorecon.metrics.depth as depth_module
+
+    rng = np.random.default_rng(0)
+    t = rng.uniform(1, 5, (60, 120)).astype(np.float32)
+    p = (t * rng.uniform(0.8, 1.3, t.shape)).astype(np.float32)
+    whole = depth_metrics(p, t, align)
+    monkeypatch.setattr(depth_module, "METRIC_CHUNK", 1000)
+    chunked = depth_metrics(p, t, align)
+    assert chunked.keys() == whole.keys()
+    for k in ("abs_rel", "rmse", "delta1", "scale"):
+        assert chunked[k] == pytest.approx(whole[k], rel=1e-12)
+    assert chunked["pixels"] == whole["pixels"] == t.size

@@ -118,17 +118,27 @@ def test_random_source_and_scene_without_truth(real_data):
     assert rep["points"]["chamfer"].startswith("n/a") and rep["depth"].startswith("n/a")
 
 
-def test_truth_sample_is_point_metrics_own_subsample():
-    """run_source measures against the true points point_metrics would draw from the whole true cloud, without
-    building it: the metrics are identical."""
+def test_metric_samples_are_point_metrics_own_subsamples():
+    """run_source measures against the points point_metrics would draw from the prediction and the whole true
+    cloud, without building the latter: the metrics are identical."""
     from panorecon.metrics import point_metrics
     from panorecon.scenes import load_scene
-    from panorecon.sources.run import _truth_sample
+    from panorecon.sources.run import _metric_samples
 
     scene = load_scene("bedroom", 256)
     rng = np.random.default_rng(0)
     for n_pred in (500, 40_000):
         pred = rng.normal(size=(n_pred, 3)).astype(np.float32)
         full = point_metrics(pred, scene.point_cloud().xyz, max_points=3000)
-        fast = point_metrics(pred, _truth_sample(scene, 3000, n_pred), max_points=3000)
-        assert full == fast
+        fast = point_metrics(*_metric_samples(scene, pred, 3000), max_points=3000)
+        assert {**fast, "count": n_pred, "subsampled_to": full["subsampled_to"]} == full
+
+
+def test_max_points_thins_the_cloud_evenly_and_reports_the_density():
+    scene = load_scene("bedroom", 128)
+    pc, report = run_source(scene, "fibonacci", "sim:clean", 6, None, max_points=2000)
+    assert 0.97 * 2000 <= len(pc) <= 2000 == report["thinning"]["max_points"]
+    assert report["thinning"]["points"] == len(pc) == report["points"]["count"]
+    assert report["thinning"]["spacing_deg"] > 0 and "thinning" in report["seconds"]
+    full, rep_full = run_source(scene, "fibonacci", "sim:clean", 6, None)
+    assert "thinning" not in rep_full and len(full) > 4 * len(pc)
