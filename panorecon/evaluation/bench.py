@@ -1,10 +1,13 @@
 """``panorecon bench``: the benchmark CI job.
 
 Runs the tiny ablation suite (fresh cache, so everything is computed), the fusion and the rasterizer
-micro-benchmarks, and compares them with a stored baseline (``benchmarks/baseline.json``):
+micro-benchmarks and the training step's roofline (``bench_roofline``; small: 128², 20k Gaussians), and compares
+them with a stored baseline (``benchmarks/baseline.json``):
 - correctness regressions fail (exit 1): an error metric worse than baseline x ``ERROR_SLACK`` (+ a floor), a
   PSNR more than ``PSNR_SLACK_DB`` below it, the cpu rasterizer drifting from the torch reference, a NaN;
-- slowdowns warn: a speed ratio measured in the same run (method / reference) below baseline / ``SLOWDOWN_RATIO``.
+- slowdowns warn: a speed ratio measured in the same run (method / reference) below baseline / ``SLOWDOWN_RATIO``,
+  or the compositing's distance from the machine's FMA peak (both measured in the same run) above baseline x
+  ``SLOWDOWN_RATIO``.
 Ratios, not seconds, are compared, so a slower or busier machine does not raise false alarms.
 """
 
@@ -27,7 +30,7 @@ SLOWDOWN_RATIO = 1.5
 def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
     """Run the suite (its stages on ``device``) and both micro-benchmarks (CPU) -> the numbers the baseline
     stores."""
-    from . import bench_fusion, bench_rasterizer
+    from . import bench_fusion, bench_rasterizer, bench_roofline
     from .ablate import run_suite
     from .suite import load_suite
 
@@ -38,6 +41,8 @@ def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
     flag = ["--quick"] if quick else []
     fusion = bench_fusion.main(flag)["results"][0]
     raster = bench_rasterizer.main(flag)
+    roof = bench_roofline.roofline(128, 20_000, 3) if quick else bench_roofline.roofline()
+    stage = {r["stage"]: r for r in roof["stages"]}
     trained = frame[frame["device"].notna()] if "device" in frame else frame.iloc[:0]
     out = {
         "suite": {},
@@ -58,6 +63,14 @@ def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
         "rasterizer": {
             "max_abs_difference": raster["max_abs_difference"],
             "speedup_cpu_vs_torch": raster["results"][0]["speedup_cpu_vs_torch"],
+        },
+        "roofline": {
+            "size": roof["size"],
+            "gaussians": roof["gaussians"],
+            "peak_gflops": roof["peak_gflops"],
+            "step_ms": roof["step_ms"],
+            "composite_distance": sum(stage[k]["ms"] for k in ("composite_forward", "composite_backward"))
+            / sum(stage[k]["floor_ms"] for k in ("composite_forward", "composite_backward")),
         },
     }
     for label, g in frame.groupby("label", sort=False):  # metrics a row does not define (NaN) are left out
@@ -103,6 +116,12 @@ def compare(current: dict, baseline: dict) -> tuple[list[str], list[str]]:
     ):
         if cur < base / SLOWDOWN_RATIO:
             warns.append(f"{name}: {cur:.2f}x < baseline {base:.2f}x / {SLOWDOWN_RATIO}")
+    if "roofline" in baseline:
+        cur, base = current["roofline"]["composite_distance"], baseline["roofline"]["composite_distance"]
+        if cur > base * SLOWDOWN_RATIO:
+            warns.append(
+                f"compositing distance from the FMA peak: {cur:.1f}x > baseline {base:.1f}x x {SLOWDOWN_RATIO}"
+            )
     return fails, warns
 
 

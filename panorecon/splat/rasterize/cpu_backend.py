@@ -4,9 +4,10 @@ Gaussians (csrc/sh_cpu.cpp, parallel over Gaussians) and tiled compositing
 (OpenMP). Built with torch.utils.cpp_extension on first use
 (or ahead of time by ``python -m panorecon.splat.rasterize.build``) into
 ``$PANORECON_CACHE/torch_extensions/<checkout>``
-(default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the two hot
-compositing functions are built twice (AVX2 and baseline x86-64) and the loader picks by CPU. Compositing is
-float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
+(default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the hot
+compositing functions are built twice (x86-64-v3, i.e. AVX2 with FMA, and baseline x86-64) and the loader picks by
+CPU. csrc/peak_cpu.cpp holds the FMA loop and copy that measure the machine's limits for the roofline benchmark.
+Compositing is float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ from .sh import check_sh
 
 log = logging.getLogger("panorecon.splat")
 _SOURCES = [
-    Path(__file__).parent / "csrc" / f for f in ("module.cpp", "project_cpu.cpp", "sh_cpu.cpp", "rasterize_cpu.cpp")
+    Path(__file__).parent / "csrc" / f
+    for f in ("module.cpp", "project_cpu.cpp", "sh_cpu.cpp", "rasterize_cpu.cpp", "peak_cpu.cpp")
 ]
 _module = None
 _error: str | None = None

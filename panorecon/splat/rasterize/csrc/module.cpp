@@ -1,5 +1,5 @@
 // The Python module of the cpu backend: projection (project_cpu.cpp), SH colours (sh_cpu.cpp) and compositing
-// (rasterize_cpu.cpp).
+// (rasterize_cpu.cpp), and the machine's measured limits for the roofline benchmark (peak_cpu.cpp).
 #include <torch/extension.h>
 #include <vector>
 
@@ -21,6 +21,8 @@ torch::Tensor sh_forward(torch::Tensor coeffs, torch::Tensor means, torch::Tenso
                          int64_t degree);
 std::vector<torch::Tensor> sh_backward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos,
                                        torch::Tensor radii, torch::Tensor g_colors, int64_t degree);
+std::vector<double> peak_fma(int64_t iters);
+std::vector<double> stream_copy(int64_t n, int64_t repeats);
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &forward, "tiled Gaussian compositing, forward");
@@ -29,4 +31,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_backward", &project_backward, "EWA projection, backward");
   m.def("sh_forward", &sh_forward, "SH colours of the visible Gaussians, forward");
   m.def("sh_backward", &sh_backward, "SH colours of the visible Gaussians, backward");
+  m.def("peak_fma", &peak_fma, "FMA loop on every thread -> [seconds, flops]");
+  m.def("stream_copy", &stream_copy, "STREAM-like copy on every thread -> [seconds, bytes]");
 }

@@ -9,6 +9,7 @@
 #include <ATen/Parallel.h>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <vector>
 
 namespace {
@@ -135,20 +136,20 @@ struct TileGaussians {
       r[k] = in.col[cn * 3]; g[k] = in.col[cn * 3 + 1]; b[k] = in.col[cn * 3 + 2]; z[k] = in.dz[cn];
     }
   }
-  // positions (into this tile's arrays) of the Gaussians whose cutoff disc reaches the block of pixel centres
-  // [x0, x1] x [y0, y1], front to back
-  void block_list(float x0, float x1, float y0, float y1, std::vector<int32_t>& out) const {
-    out.clear();
-    for (int64_t k = 0; k < (int64_t)id.size(); ++k) {
-      const float dx = std::max(std::max(x0 - mx[k], mx[k] - x1), 0.f);
-      const float dy = std::max(std::max(y0 - my[k], my[k] - y1), 0.f);
-      if (dx * dx + dy * dy <= cut[k]) out.push_back((int32_t)k);
-    }
-  }
 };
 
+// Calls fn(i0, i1, j0, j1) for the BLOCK x BLOCK pixel blocks [i0, i1) x [j0, j1) of tile t of a camera, row by row.
+template <typename Fn>
+inline void for_each_block(int64_t t, int64_t W, int64_t H, int64_t tile, Fn fn) {
+  const int64_t tx_n = (W + tile - 1) / tile, ty = t / tx_n, tx = t % tx_n;
+  for (int64_t i0 = ty * tile; i0 < std::min<int64_t>(H, (ty + 1) * tile); i0 += BLOCK)
+    for (int64_t j0 = tx * tile; j0 < std::min<int64_t>(W, (tx + 1) * tile); j0 += BLOCK)
+      fn(i0, std::min<int64_t>({H, (ty + 1) * tile, i0 + BLOCK}), j0, std::min<int64_t>({W, (tx + 1) * tile, j0 + BLOCK}));
+}
+
 // The pixels of a BLOCK x BLOCK block are composited in lockstep as VECS vectors of 8 floats (GCC/Clang vector
-// extensions: AVX2 registers in the avx2 clone, pairs of SSE registers in the default one).
+// extensions: AVX2 registers with fused multiply-adds in the x86-64-v3 clone, pairs of SSE registers in the default
+// one).
 typedef float v8f __attribute__((vector_size(32)));
 typedef int32_t v8i __attribute__((vector_size(32)));
 constexpr int LANES = BLOCK * BLOCK, VECS = LANES / 8;
@@ -156,7 +157,7 @@ static_assert(LANES % 8 == 0, "a block must fill whole vectors");
 
 #define PR_INLINE inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__)
-#define PR_CLONES __attribute__((target_clones("avx2", "default")))  // the loader picks by CPU
+#define PR_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))  // AVX2 + FMA; the loader picks
 #else
 #define PR_CLONES
 #endif
@@ -168,6 +169,49 @@ PR_INLINE float hmax(v8f v) {
   return std::max(std::max(std::max(v[0], v[4]), std::max(v[1], v[5])), std::max(std::max(v[2], v[6]), std::max(v[3], v[7])));
 }
 PR_INLINE bool any_set(v8i m) { return (m[0] | m[1] | m[2] | m[3] | m[4] | m[5] | m[6] | m[7]) != 0; }
+
+// Every block's list of a tile (the blocks in for_each_block's order): the positions, front to back, of the tile's
+// Gaussians whose cutoff disc reaches the block's pixel centres (distance from the mean to the rectangle of centres,
+// squared, <= cut; a NaN excludes). Built in one pass over the tile's Gaussians, each tested against all the tile's
+// blocks at once, 8 blocks to a vector, without a branch: the scalar scan per block that it replaces took about a
+// quarter of the compositing's time at 256^2 / 100k (perf). Forward and backward build the same lists.
+struct BlockLists {
+  int64_t n_blocks = 0, cap = 0;
+  std::vector<float> x0, x1, y0, y1;  // pixel-centre rectangle of each block, padded to 8 (+inf: never read)
+  std::vector<int32_t> count, pos;  // pos: cap entries per block
+  const int32_t* list(int64_t b) const { return pos.data() + b * cap; }
+};
+
+PR_CLONES
+void build_block_lists(BlockLists& L, const TileGaussians& G, int64_t t, int64_t W, int64_t H, int64_t tile) {
+  std::vector<float> r0, r1, c0, c1;
+  for_each_block(t, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
+    c0.push_back(j0 + 0.5f); c1.push_back(j1 - 0.5f); r0.push_back(i0 + 0.5f); r1.push_back(i1 - 0.5f);
+  });
+  L.n_blocks = (int64_t)c0.size();
+  const int64_t nv = (L.n_blocks + 7) / 8;
+  for (auto* v : {&c0, &c1, &r0, &r1}) v->resize(nv * 8, INFINITY);
+  L.x0 = c0; L.x1 = c1; L.y0 = r0; L.y1 = r1;
+  L.cap = (int64_t)G.id.size();
+  L.count.assign(nv * 8, 0);
+  L.pos.resize(nv * 8 * L.cap);
+  const v8f zero = {};
+  for (int64_t k = 0; k < L.cap; ++k) {
+    const float mx = G.mx[k], my = G.my[k], cut = G.cut[k];
+    for (int64_t v = 0; v < nv; ++v) {
+      v8f x0, x1, y0, y1;  // unaligned loads: a std::vector is not 32-byte aligned
+      std::memcpy(&x0, &L.x0[v * 8], sizeof(v8f)); std::memcpy(&x1, &L.x1[v * 8], sizeof(v8f));
+      std::memcpy(&y0, &L.y0[v * 8], sizeof(v8f)); std::memcpy(&y1, &L.y1[v * 8], sizeof(v8f));
+      const v8f dx = vmax(zero, vmax(x0 - mx, mx - x1)), dy = vmax(zero, vmax(y0 - my, my - y1));
+      const v8i in = dx * dx + dy * dy <= cut;
+      for (int u = 0; u < 8; ++u) {  // append k where reached: store always, advance the count by the mask
+        const int64_t b = v * 8 + u;
+        L.pos[b * L.cap + L.count[b]] = (int32_t)k;
+        L.count[b] += in[u] & 1;
+      }
+    }
+  }
+}
 
 // exp(-s) per lane for s >= 0: Cephes' expf (range reduction by ln 2 in two parts, degree-6 polynomial,
 // exponent bits); relative error below 2e-7. s is clamped to [0, 40]: exp(-40) is far below any alpha that counts
@@ -221,15 +265,21 @@ void composite_block(const TileGaussians& G, const int32_t* list, int64_t n_l, i
     const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], k1 = (float)(k + 1);
     v8f w_sum = zero, w_max = zero, t_max = zero;
     v8i alive = {};
+    v8f a[VECS];
+    v8i use[VECS], any = {};
     for (int v = 0; v < VECS; ++v) {
       const v8f dx = px[v] - mx, dy = py[v] - my;
       const v8f sigma = 0.5f * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
-      const v8f a = vmin(zero + ALPHA_MAX, o * exp_neg(sigma));
-      const v8f nextT = T[v] * (1.f - a);
-      const v8i use = live[v] & (sigma >= 0.f) & (a >= ALPHA_MIN);
-      const v8i stop = use & (nextT <= T_MIN);
-      const v8i add = use & ~stop;
-      const v8f w = select(add, a * T[v], zero);
+      a[v] = vmin(zero + ALPHA_MAX, o * exp_neg(sigma));
+      use[v] = live[v] & (sigma >= 0.f) & (a[v] >= ALPHA_MIN);
+      any |= use[v];
+    }
+    if (!any_set(any)) continue;  // composited in no lane (and stops none): nothing changes
+    for (int v = 0; v < VECS; ++v) {
+      const v8f nextT = T[v] * (1.f - a[v]);
+      const v8i stop = use[v] & (nextT <= T_MIN);
+      const v8i add = use[v] & ~stop;
+      const v8f w = select(add, a[v] * T[v], zero);
       t_max = vmax(t_max, select(add, T[v], zero));
       r[v] += w * cr; g[v] += w * cg; b[v] += w * cb; d[v] += w * cz;
       T[v] = select(add, nextT, T[v]);
@@ -280,30 +330,36 @@ void composite_block_backward(const TileGaussians& G, const int32_t* list, int64
     const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], kf = (float)k;
     v8f g_mx = zero, g_my = zero, g_qa = zero, g_qb = zero, g_qc = zero, g_r = zero, g_g = zero, g_b = zero,
         g_z = zero, g_o = zero;
+    v8f dx[VECS], dy[VECS], vis[VECS], a[VECS];
+    v8i use[VECS], any = {};
     for (int v = 0; v < VECS; ++v) {
-      const v8f dx = px[v] - mx, dy = py[v] - my;
-      const v8f sigma = 0.5f * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
-      const v8f vis = exp_neg(sigma);
-      const v8f a = vmin(zero + ALPHA_MAX, o * vis);
-      const v8i use = (kf < in.end[v]) & (sigma >= 0.f) & (a >= ALPHA_MIN);
-      const v8f inv = 1.f / (1.f - a);
+      dx[v] = px[v] - mx; dy[v] = py[v] - my;
+      const v8f sigma = 0.5f * (qa * dx[v] * dx[v] + qc * dy[v] * dy[v]) + qb * dx[v] * dy[v];
+      vis[v] = exp_neg(sigma);
+      a[v] = vmin(zero + ALPHA_MAX, o * vis[v]);
+      use[v] = (kf < in.end[v]) & (sigma >= 0.f) & (a[v] >= ALPHA_MIN);
+      any |= use[v];
+    }
+    if (!any_set(any)) continue;  // composited in no lane: no gradient, T and S unchanged
+    for (int v = 0; v < VECS; ++v) {
+      const v8f inv = 1.f / (1.f - a[v]);
       const v8f Tb = T[v] * inv;  // transmittance in front of it
-      const v8f w = select(use, a * Tb, zero);
+      const v8f w = select(use[v], a[v] * Tb, zero);
       g_r += w * in.gr[v]; g_g += w * in.gg[v]; g_b += w * in.gb[v]; g_z += w * in.gz[v];
       const v8f g_a = Tb * (cr * in.gr[v] + cg * in.gg[v] + cb * in.gb[v] + cz * in.gz[v])
                       - (Sr[v] * in.gr[v] + Sg[v] * in.gg[v] + Sb[v] * in.gb[v] + Sd[v] * in.gz[v]) * inv
                       + in.ga[v] * in.T_end[v] * inv;
       Sr[v] += w * cr; Sg[v] += w * cg; Sb[v] += w * cb; Sd[v] += w * cz;
-      T[v] = select(use, Tb, T[v]);
+      T[v] = select(use[v], Tb, T[v]);
       // a clamped alpha passes no gradient to opacity or shape
-      const v8f g_vis = select(use & (o * vis <= ALPHA_MAX), vis * g_a, zero);
+      const v8f g_vis = select(use[v] & (o * vis[v] <= ALPHA_MAX), vis[v] * g_a, zero);
       g_o += g_vis;
       const v8f g_sigma = -o * g_vis;
-      g_qa += 0.5f * dx * dx * g_sigma;
-      g_qb += dx * dy * g_sigma;
-      g_qc += 0.5f * dy * dy * g_sigma;
-      g_mx -= (qa * dx + qb * dy) * g_sigma;
-      g_my -= (qb * dx + qc * dy) * g_sigma;
+      g_qa += 0.5f * dx[v] * dx[v] * g_sigma;
+      g_qb += dx[v] * dy[v] * g_sigma;
+      g_qc += 0.5f * dy[v] * dy[v] * g_sigma;
+      g_mx -= (qa * dx[v] + qb * dy[v]) * g_sigma;
+      g_my -= (qb * dx[v] + qc * dy[v]) * g_sigma;
     }
     float* q = grad + l * 10;
     q[0] += hsum(g_mx); q[1] += hsum(g_my); q[2] += hsum(g_qa); q[3] += hsum(g_qb); q[4] += hsum(g_qc);
@@ -311,14 +367,6 @@ void composite_block_backward(const TileGaussians& G, const int32_t* list, int64
   }
 }
 
-// Calls fn(i0, i1, j0, j1) for the BLOCK x BLOCK pixel blocks [i0, i1) x [j0, j1) of tile t of a camera.
-template <typename Fn>
-inline void for_each_block(int64_t t, int64_t W, int64_t H, int64_t tile, Fn fn) {
-  const int64_t tx_n = (W + tile - 1) / tile, ty = t / tx_n, tx = t % tx_n;
-  for (int64_t i0 = ty * tile; i0 < std::min<int64_t>(H, (ty + 1) * tile); i0 += BLOCK)
-    for (int64_t j0 = tx * tile; j0 < std::min<int64_t>(W, (tx + 1) * tile); j0 += BLOCK)
-      fn(i0, std::min<int64_t>({H, (ty + 1) * tile, i0 + BLOCK}), j0, std::min<int64_t>({W, (tx + 1) * tile, j0 + BLOCK}));
-}
 }  // namespace
 
 // -> image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1], T_final [C,H,W], last [C,H,W] (int32: how many
@@ -346,14 +394,16 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
     float* cb = want_contrib ? contrib_buf.data() + at::get_thread_num() * 3 * C * N : nullptr;
     TileGaussians G;
-    std::vector<int32_t> list;
+    BlockLists L;
     BlockOut px;
     for (int64_t t = b; t < e; ++t) {
       const int64_t c = t / tiles;
       G.gather(bins.ids.data() + bins.offsets[t], bins.offsets[t + 1] - bins.offsets[t], c, in);
+      build_block_lists(L, G, t % tiles, W, H, tile);
+      int64_t blk = 0;
       for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
-        G.block_list(j0 + 0.5f, j1 - 0.5f, i0 + 0.5f, i1 - 0.5f, list);
-        composite_block(G, list.data(), (int64_t)list.size(), i0, i1, j0, j1, px, cb, C * N, c * N);
+        composite_block(G, L.list(blk), L.count[blk], i0, i1, j0, j1, px, cb, C * N, c * N);
+        ++blk;
         for (int64_t i = i0; i < i1; ++i)
           for (int64_t j = j0; j < j1; ++j) {
             const int64_t q = (i - i0) * BLOCK + (j - j0), v = q / 8, u = q % 8, p = (c * H + i) * W + j;
@@ -403,7 +453,7 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
     float* acc = buf.data() + at::get_thread_num() * stride;
     float *gm = acc, *gc = acc + C * N * 2, *gcol = acc + C * N * 5, *gz = acc + C * N * 8, *go = acc + C * N * 9;
     TileGaussians G;
-    std::vector<int32_t> list;
+    BlockLists L;
     BlockGrad px;
     std::vector<float> grad;  // this tile's gradients, 10 per Gaussian: m2d x y, conic a b c, rgb, z, opacity
     for (int64_t t = b; t < e; ++t) {
@@ -411,8 +461,10 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
       const int64_t n_g = off[t + 1] - off[t];
       G.gather(gid + off[t], n_g, c, in);
       grad.assign(n_g * 10, 0.f);
+      build_block_lists(L, G, t % tiles, W, H, tile);
+      int64_t blk = 0;
       for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
-        G.block_list(j0 + 0.5f, j1 - 0.5f, i0 + 0.5f, i1 - 0.5f, list);
+        const int32_t* list = L.list(blk++);
         for (int64_t q = 0; q < LANES; ++q) {
           const int64_t i = i0 + q / BLOCK, j = j0 + q % BLOCK, p = (c * H + i) * W + j, v = q / 8, u = q % 8;
           const bool inside = i < i1 && j < j1;
@@ -421,7 +473,7 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
           px.ga[v][u] = inside ? ga[p] : 0.f; px.T_end[v][u] = inside ? Tf[p] : 1.f;
           px.end[v][u] = inside ? (float)ls[p] : 0.f;
         }
-        composite_block_backward(G, list.data(), i0, j0, px, grad.data());
+        composite_block_backward(G, list, i0, j0, px, grad.data());
       });
       for (int64_t l = 0; l < n_g; ++l) {  // one scatter per tile into this thread's [C, N] buffers
         const float* q = grad.data() + l * 10;

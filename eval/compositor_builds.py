@@ -1,0 +1,78 @@
+"""Time the cpu compositor of the checkout on PYTHONPATH (forward + backward, one thread, CPU seconds) and compare its
+outputs with another checkout's, so that two builds (e.g. an old commit extracted with ``git archive``) are timed
+one after the other on a shared machine, where wall seconds mean little.
+
+    git archive OLD | tar -x -C /tmp/old
+    PYTHONPATH=/tmp/old python eval/compositor_builds.py --save /tmp/old.pt
+    PYTHONPATH=. python eval/compositor_builds.py --against /tmp/old.pt      # alternate a few times
+
+Scene: ``bench_rasterizer.scene`` (one 60° camera), ``--size`` and ``--gaussians`` (default 256², 100k);
+gradients of a fixed random weighting of image, alpha and depth. Prints one JSON line: median CPU milliseconds of
+the forward (with contributions) and backward, and with ``--against`` the largest |difference| of every output
+and gradient (relative to the largest magnitude for gradients).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+
+
+def main(argv=None) -> dict:
+    import torch
+
+    from panorecon.evaluation.bench_rasterizer import scene
+    from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+    from panorecon.splat.rasterize import cpu_backend
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--gaussians", type=int, default=100_000)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--save", default=None, help="write the outputs here (torch.save)")
+    ap.add_argument("--against", default=None, help="compare with outputs saved by another checkout")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    size, ext = args.size, cpu_backend.load()
+    K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
+    V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
+    means, quats, scales, opac, colors = scene(args.gaussians)
+    m2d, con, dep, radii = ext.project_forward(means, quats, scales, V, K, size, size, 0.01, 1e10, 0.3)
+    cols = colors[None].contiguous()
+    g = torch.Generator().manual_seed(3)
+    weights = [torch.rand(1, size, size, c, generator=g) for c in (3, 1, 1)]
+    fwd, bwd = [], []
+    for _ in range(args.repeats):
+        t0 = time.process_time()
+        f = ext.forward(m2d, con, cols, opac, dep, radii, size, size, 16, True)
+        t1 = time.process_time()
+        b = ext.backward(m2d, con, cols, opac, dep, f[3], f[4], f[5], f[6], *weights, size, size, 16)
+        t2 = time.process_time()
+        fwd.append(t1 - t0)
+        bwd.append(t2 - t1)
+    outputs = {"forward": [f[k] for k in (0, 1, 2, 7, 8, 9)], "backward": list(b)}
+    out = {
+        "size": size,
+        "gaussians": args.gaussians,
+        "forward_cpu_ms": 1000 * statistics.median(fwd),
+        "backward_cpu_ms": 1000 * statistics.median(bwd),
+    }
+    if args.against:
+        other = torch.load(args.against)
+        out["max_abs_difference_forward"] = [
+            float((x - y).abs().max()) for x, y in zip(outputs["forward"], other["forward"])
+        ]
+        out["max_rel_difference_backward"] = [
+            float((x - y).abs().max() / x.abs().max().clamp_min(1e-12))
+            for x, y in zip(outputs["backward"], other["backward"])
+        ]
+    if args.save:
+        torch.save(outputs, args.save)
+    print(json.dumps(out))
+    return out
+
+
+if __name__ == "__main__":
+    main()
