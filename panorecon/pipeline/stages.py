@@ -61,7 +61,8 @@ class Row:
                 "source": self.source,
                 "teacher": teacher_fingerprint(self._teacher_for_points()),
                 "views": self.views,
-                "seed": self.seed if self._points_seeded() else None,
+                # a seed-independent stage keeps the key it had before suites had seeds (its cache stays valid)
+                **({"seed": self.seed} if self._points_seeded() else {}),
             },
             code=POINTS_CODE,
         )

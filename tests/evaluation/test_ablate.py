@@ -215,7 +215,10 @@ def test_from_csv_never_overwrites_its_input(seeded_run, tmp_path, capsys):
     copy = tmp_path / "results.csv"
     copy.write_bytes((d / "out" / "results.csv").read_bytes())
     assert main(["ablate", "--from-csv", str(copy), "--out", str(tmp_path)]) == 2
-    assert "is the input" in capsys.readouterr().err and copy.read_bytes() == (d / "out" / "results.csv").read_bytes()
+    assert (
+        "may not overwrite an input" in capsys.readouterr().err
+        and copy.read_bytes() == (d / "out" / "results.csv").read_bytes()
+    )
     assert not (tmp_path / "results.md").exists()
     (tmp_path / "empty.csv").write_text("")
     assert main(["ablate", "--from-csv", str(tmp_path / "empty.csv"), "--out", str(tmp_path / "o")]) == 2

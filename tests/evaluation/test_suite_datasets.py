@@ -13,6 +13,7 @@ from panorecon.pipeline import Row, StageCache, run_points
 from panorecon.pipeline.cache import stage_key
 from panorecon.pipeline.stages import POINTS_CODE
 from panorecon.scenes import load_scene
+from panorecon.teachers import teacher_fingerprint
 
 REAL_GT = Path(__file__).parents[2] / "eval" / "suites" / "real_gt.toml"
 
@@ -57,13 +58,15 @@ def test_depth_keys_and_a_row_end_to_end(root, tmp_path):
     assert row.depth == (f"{root}/depth.png", 0.001, "distance") and row.scene == f"{root}/pano.png"
     rec = run_points(StageCache(tmp_path / "cache"), row)
     assert rec["report"]["depth"]["abs_rel"] < 0.1 and isinstance(rec["report"]["points"]["fscore"], float)
-    # depth enters the key; a row without depth keeps the key it always had
+    # depth enters the key; a row without depth keeps the key it always had (the simulated teacher is seeded, so
+    # its seed is in the key; a seed-independent stage's key has no seed)
     plain = Row(row.scene, row.width, row.source, row.teacher, row.views)
     assert plain.points_key() != row.points_key()
-    assert plain.points_key() == stage_key(
-        "points",
-        {"scene": row.scene, "width": 32, "source": "fibonacci", "teacher": "sim:relative", "views": 12},
-        code=POINTS_CODE,
+    params = {"scene": row.scene, "width": 32, "source": "fibonacci", "teacher": "sim:relative", "views": 12}
+    assert plain.points_key() == stage_key("points", {**params, "seed": 0}, code=POINTS_CODE)
+    unseeded = Row(row.scene, row.width, "fibonacci", "oracle", row.views)
+    assert unseeded.points_key() == stage_key(
+        "points", {**params, "teacher": teacher_fingerprint("oracle")}, code=POINTS_CODE
     )
     # a multi-view baseline needs a world to render panoramas around the centre: the row reads n/a
     colmap = Row(f"stanford2d3d:{root}/area_3/camera_{0:032x}_office_1_0", 32, "colmap-sfm", None, train=None)
