@@ -12,10 +12,16 @@ from panorecon.sources import run_source
 
 @pytest.fixture(scope="module")
 def scene_and_metric_file(tmp_path_factory):
-    scene = load_scene("bedroom", 64)
-    path = tmp_path_factory.mktemp("teacher") / "truth.npy"
-    np.save(path, np.where(np.isfinite(scene.distance), scene.distance, np.nan))
-    return scene, f"file:{path}?metric=1", load_scene("bedroom", 256)
+    """(64 px scene, its true-depth file: spec, 256 px scene, its own file: spec): a file teacher's map has the
+    scene's size (a much smaller one is refused)."""
+    folder = tmp_path_factory.mktemp("teacher")
+    out = []
+    for width in (64, 256):
+        scene = load_scene("bedroom", width)
+        path = folder / f"truth{width}.npy"
+        np.save(path, np.where(np.isfinite(scene.distance), scene.distance, np.nan))
+        out += [scene, f"file:{path}?metric=1"]
+    return tuple(out)
 
 
 @pytest.mark.parametrize("teacher", ["sim:clean", "sim:relative", "sim:affine-disparity", "metric-file"])
@@ -23,12 +29,13 @@ def scene_and_metric_file(tmp_path_factory):
 def test_every_teacher_kind_reports_connectivity_and_two_fibonacci_views_are_flagged(
     scene_and_metric_file, caplog, teacher, source
 ):
-    scene, metric_file, larger = scene_and_metric_file
-    teacher = metric_file if teacher == "metric-file" else teacher
+    scene, metric_file, larger, larger_metric_file = scene_and_metric_file
     if source == "moge-merge":  # (at 64 px the affine alignment of its 12 small views leaves no valid depth)
+        teacher = larger_metric_file if teacher == "metric-file" else teacher
         _, report = run_source(larger, source, teacher)  # icosahedron vertices: connected
         assert report["view_components"] == 1 and "warnings" not in report
         return
+    teacher = metric_file if teacher == "metric-file" else teacher
     with caplog.at_level(logging.WARNING, logger="panorecon.fusion"):
         _, two = run_source(scene, source, teacher, views=2)
     assert two["view_components"] == 2 and two["fusion"]["connectivity"]["groups"] == [[0], [1]]
