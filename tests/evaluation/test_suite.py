@@ -258,13 +258,18 @@ def test_a_reference_that_matches_several_rows_says_which(tmp_path):
     assert ok.reference == "fibonacci / 12"
 
 
-def test_every_shipped_table_suite_can_name_seeds_and_a_reference(tmp_path):
-    """The paper's tables (eval/suites/table*.toml) take seeds and a reference row by its label."""
+def test_every_shipped_table_suite_names_seeds_and_a_reference_row(tmp_path):
+    """The paper's five tables (eval/suites/table{2,4,5,6,7}.toml) name a reference that is one of their rows, Tables 2 and 7 (the
+    headline claims) at least two seeds; a reference given by a row's label works on each of them too."""
+    import re
     from pathlib import Path
 
-    for p in sorted((Path(__file__).parents[2] / "eval" / "suites").glob("table*.toml")):
-        first = load_suite(p).rows[0].label
+    for p in sorted((Path(__file__).parents[2] / "eval" / "suites").glob("table[24567].toml")):
+        s = load_suite(p)
+        assert s.reference in {r.label for r in s.rows}, p.name
+        assert len(s.seeds) >= (2 if p.stem in ("table2", "table7") else 1), p.name
+        assert len(s.rows) == len(s.seeds) * len({r.label for r in s.rows}) * len({r.scene for r in s.rows}), p.name
+        last = s.rows[-1].label
         q = tmp_path / p.name
-        q.write_text(f"seeds = [0, 1]\nreference = {{ label = {first!r} }}\n" + p.read_text())
-        s = load_suite(q)
-        assert s.reference == first and s.seeds == [0, 1] and len(s.rows) == 2 * len(load_suite(p).rows), p.name
+        q.write_text(re.sub(r"(?m)^reference = .*$", f"reference = {{ label = {last!r} }}", p.read_text()))
+        assert load_suite(q).reference == last, p.name
