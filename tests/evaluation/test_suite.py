@@ -259,8 +259,8 @@ def test_a_reference_that_matches_several_rows_says_which(tmp_path):
 
 
 def test_every_shipped_table_suite_names_seeds_and_a_reference_row(tmp_path):
-    """The paper's five tables (eval/suites/table{2,4,5,6,7}.toml) name a reference that is one of their rows, Tables 2 and 7 (the
-    headline claims) at least two seeds; a reference given by a row's label works on each of them too."""
+    """The paper's five tables (eval/suites/table{2,4,5,6,7}.toml) name a reference that is one of their rows,
+    Tables 2 and 7 (the headline claims) at least two seeds; a reference given by a row's label works too."""
     import re
     from pathlib import Path
 
