@@ -356,7 +356,7 @@ def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites
     """Index of the point nearest (largest cosine) each of ``n_sites`` Fibonacci sites among the points whose
     cell of an ERP lookup grid (g x 2g cells, g = ceil(sqrt(pi n_sites / 2)): cells half a site's area at the
     equator, smaller elsewhere) has that site as the site nearest its centre (a KD-tree over the sites, queried
-    once per cell, not per point); sites no point reaches give none. [<= n_sites] int64."""
+    once per cell, not per point); sites no point reaches give none. [<= n_sites] int64, in site order."""
     from scipy.spatial import cKDTree
 
     g = int(np.ceil(np.sqrt(np.pi * n_sites / 2)))
@@ -372,7 +372,15 @@ def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites
         s = site[i : i + PLY_CHUNK] = site_of_cell[row * 2 * g + col]
         d = xyz[i : i + PLY_CHUNK].astype(np.float64)
         cos[i : i + PLY_CHUNK] = np.einsum("nk,nk->n", d, site_dirs[s]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
-    order = np.argsort(site * 4.0 + (1.0 - cos))  # by site, nearest first (1 - cos in [0, 2])
-    first = np.ones(len(order), bool)
-    first[1:] = site[order[1:]] != site[order[:-1]]
-    return order[first]
+    return _nearest_per_site(site, cos, n_sites)
+
+
+def _nearest_per_site(site: np.ndarray, cos: np.ndarray, n_sites: int) -> np.ndarray:
+    """For each site that some point has (``site`` [N] in [0, n_sites)), the index of its point of largest ``cos``
+    [N] (ties: the lowest index), in increasing site order. O(N): a per-site maximum, then the first point that
+    attains it (an argsort by (site, -cos) gives the same points and was 19x slower at 33.5M points)."""
+    best = np.full(n_sites, -np.inf)
+    np.maximum.at(best, site, cos)
+    candidates = np.flatnonzero(cos == best[site])
+    _, first = np.unique(site[candidates], return_index=True)
+    return candidates[first]

@@ -69,3 +69,25 @@ def test_streamed_ply_equals_the_cloud(tmp_path, monkeypatch):
     np.testing.assert_array_equal(back.xyz, pc.xyz)
     np.testing.assert_array_equal(back.rgb, pc.rgb)
     np.testing.assert_array_equal(back.view_id, pc.view_id)
+
+
+def _nearest_per_site_by_sort(site, cos):
+    """Reference: sort by (site, -cos) and keep each site's first point."""
+    order = np.lexsort((np.arange(len(site)), -cos, site))
+    first = np.ones(len(order), bool)
+    first[1:] = site[order[1:]] != site[order[:-1]]
+    return order[first]
+
+
+@pytest.mark.parametrize("n, n_sites, levels", [(50_000, 1_000, None), (20_000, 5_000, 7), (10, 3, 2), (1, 1, None)])
+def test_nearest_per_site_equals_the_sort(n, n_sites, levels):
+    """The O(N) per-site maximum picks the same point per site as sorting by (site, -cos) with ties to the lowest
+    index (``levels``: cos quantized to a few values, so ties are common); sites without a point give none."""
+    from panorecon.geometry.pointcloud import _nearest_per_site
+
+    rng = np.random.default_rng(n)
+    site = rng.integers(0, n_sites, n)
+    cos = rng.random(n) if levels is None else rng.integers(0, levels, n) / levels
+    fast = _nearest_per_site(site, cos, n_sites)
+    assert np.array_equal(fast, _nearest_per_site_by_sort(site, cos))
+    assert len(fast) == len(np.unique(site))
