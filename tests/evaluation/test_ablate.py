@@ -26,12 +26,17 @@ source = ["fibonacci", "random"]
 """
 
 
-@pytest.fixture(scope="module")
-def first_run(tmp_path_factory):
-    d = tmp_path_factory.mktemp("ablate")
-    (d / "tiny.toml").write_text(TINY)
+def _run_tiny(tmp_path_factory, name: str, text: str):
+    """(folder, suite, results frame) of the suite ``text`` run into folder/out."""
+    d = tmp_path_factory.mktemp(name)
+    (d / "tiny.toml").write_text(text)
     suite = load_suite(d / "tiny.toml")
     return d, suite, run_suite(suite, d / "out", jobs=2, progress=False)
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory):
+    return _run_tiny(tmp_path_factory, "ablate", TINY)
 
 
 def test_outputs_have_every_metric_with_time_and_memory(first_run):
@@ -143,10 +148,7 @@ SEEDED = TINY.replace('rows = ["source"]', 'rows = ["source"]\nseeds = [0, 1]\nr
 
 @pytest.fixture(scope="module")
 def seeded_run(tmp_path_factory):
-    d = tmp_path_factory.mktemp("seeded")
-    (d / "tiny.toml").write_text(SEEDED)
-    suite = load_suite(d / "tiny.toml")
-    return d, suite, run_suite(suite, d / "out", jobs=2, progress=False)
+    return _run_tiny(tmp_path_factory, "seeded", SEEDED)
 
 
 def test_a_suite_with_seeds_and_a_reference_runs_end_to_end(seeded_run):
