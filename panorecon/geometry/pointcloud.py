@@ -378,7 +378,8 @@ def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites
 def _nearest_per_site(site: np.ndarray, cos: np.ndarray, n_sites: int) -> np.ndarray:
     """For each site that some point has (``site`` [N] in [0, n_sites)), the index of its point of largest ``cos``
     [N] (ties: the lowest index), in increasing site order. O(N): a per-site maximum, then the first point that
-    attains it (an argsort by (site, -cos) gives the same points and was 19x slower at 33.5M points)."""
+    attains it (the argsort by the float64 key site * 4 + (1 - cos) it replaced was 19x slower at 33.5M points and
+    rounded away cosine differences below ~1e-9)."""
     best = np.full(n_sites, -np.inf)
     np.maximum.at(best, site, cos)
     candidates = np.flatnonzero(cos == best[site])
