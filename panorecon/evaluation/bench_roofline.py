@@ -10,7 +10,8 @@ time slices others took (a shared machine's wall seconds are inflated unevenly, 
 
 The limits: ``peak_gflops`` from an FMA loop on every thread (csrc/peak_cpu.cpp: 12 independent 8-lane
 accumulators, AVX2+FMA where the CPU has it; an FMA counts as 2 flops) and ``peak_gbs`` from a STREAM-like copy
-of two 64 MiB float32 arrays (read + write bytes). A stage's floor is max(flops / peak_gflops, bytes /
+of two 64 MiB float32 arrays (read + write bytes; the copies' time alone, without the arrays' allocation and
+first touch, whose page faults cost several times the copies). A stage's floor is max(flops / peak_gflops, bytes /
 peak_gbs); ``distance`` = its time / that floor (1 = at the machine's limit), ``bound`` says which roof is nearer.
 
 The step: the bench rasterizer's scene (evaluation/bench_rasterizer.scene) with half the Gaussians mirrored behind
@@ -79,9 +80,13 @@ def machine_peaks(
         t = now()
         work = ext.peak_fma(fma_iters)[1]
         rates["fma"].append(work / (now() - t))
+        # the copy's own time: a call of 5 copies minus a call of 1, so that the allocation and first touch of
+        # the two arrays inside each call (page faults: several times the copies themselves) cancel
         t = now()
-        work = ext.stream_copy(copy_floats, 4)[1]
-        rates["copy"].append(work / (now() - t))
+        ext.stream_copy(copy_floats, 1)
+        t1 = now()
+        work = ext.stream_copy(copy_floats, 5)[1] * 4 / 5
+        rates["copy"].append(work / max((now() - t1) - (t1 - t), 1e-9))
     return {
         "peak_gflops": max(rates["fma"]) / 1e9,
         "peak_gbs": max(rates["copy"]) / 1e9,
@@ -145,11 +150,13 @@ def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
         return clock()
 
     teacher = None
+    g_adam = torch.Generator().manual_seed(3)
+    adam_grads = [torch.randn(p.shape, generator=g_adam) * 1e-3 for p in model.parameters()]
     for _ in range(repeats + 1):  # the first is a warm-up
         t = clock()
         m2d, con, dep, radii = cpu_backend.project(model.means, model.quats, model.scales(), V, K, size, size)
         t = tick("projection_forward", t)
-        cols = cpu_backend.sh_colors(3, model.sh(), model.means, campos, radii)
+        cols = cpu_backend.sh_colors(3, (model.sh0, model.shN), model.means, campos, radii)
         t = tick("sh_forward", t)
         leaves = [x.detach().requires_grad_(True) for x in (m2d, con, cols, dep)]
         op = model.opacities()
@@ -174,8 +181,9 @@ def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
             [m2d, con, dep], [model.means, model.quats, model.log_scales], [grads[0], grads[1], grads[3]]
         )
         t = tick("projection_backward", t)
-        for p in model.parameters():
-            p.grad = torch.randn_like(p) * 1e-3
+        for p, grad in zip(model.parameters(), adam_grads):  # outside the clock: randn costs ~10x the step
+            p.grad = grad
+        t = clock()
         opt.step()
         t = tick("adam", t)
         opt.zero_grad(set_to_none=True)

@@ -147,7 +147,7 @@ def _render(
         model.quats,
         model.scales(),
         model.opacities(),
-        model.sh(),
+        (model.sh0, model.shN),  # the cpu backend reads both in place: no [N, 16, 3] concatenation per step
         V,
         K,
         cfg.res,

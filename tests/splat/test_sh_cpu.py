@@ -97,3 +97,41 @@ def test_random_cases_agree(degree, n, seed):
     torch.testing.assert_close(col, col_r, rtol=1e-12, atol=1e-12)
     torch.testing.assert_close(gc, gc_r, rtol=1e-12, atol=1e-12)
     torch.testing.assert_close(gm[1:], gm_r[1:], rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 3])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_the_pair_sh0_shN_is_the_same_as_one_tensor(degree, dtype):
+    """The trainer's form, the model's (sh0 [N,1,3], shN [N,K-1,3]) read in place, against the reference on their
+    concatenation: the same colours and gradients (each band its own gradient tensor)."""
+    coeffs, means, campos, radii, ups = case(120, 5, dtype)
+    k = (degree + 1) ** 2
+    # degree 0 with all 15 higher bands, as in the trainer's first steps; others with exactly the bands they read
+    sh0, shN = (t.clone().requires_grad_(True) for t in (coeffs[:, :1], coeffs[:, 1 : max(k, 16 * (degree == 0))]))
+    m = means.clone().requires_grad_(True)
+    colors = cpu_backend.sh_colors(degree, (sh0, shN), m, campos, radii)
+    (colors * ups).sum().backward()
+    c = coeffs[:, : 1 + shN.shape[1]].clone().requires_grad_(True)
+    m_r = means.clone().requires_grad_(True)
+    ref = sh_colors_reference(degree, c, m_r, campos) * (radii[..., None] > 0)
+    (ref * ups).sum().backward()
+    tol = dict(rtol=1e-12, atol=1e-12) if dtype == torch.float64 else dict(rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(colors, ref.detach(), **tol)
+    torch.testing.assert_close(sh0.grad, c.grad[:, :1], **tol)
+    if degree == 0:  # no higher band is read: no gradient tensor for them at all
+        assert shN.grad is None
+    else:
+        assert shN.grad.shape == shN.shape and shN.grad.is_contiguous()
+        torch.testing.assert_close(shN.grad, c.grad[:, 1:], **tol)
+    if degree > 0:
+        torch.testing.assert_close(
+            m.grad[1:], m_r.grad[1:], **(tol if dtype == torch.float64 else dict(rtol=1e-4, atol=1e-4))
+        )
+
+
+def test_a_pair_of_wrong_shapes_is_one_clear_error():
+    coeffs, means, campos, radii, _ = case(5, 0, torch.float32)
+    with pytest.raises(ValueError, match=r"expected \[N, 1, 3\] and \[N, K - 1, 3\]"):
+        cpu_backend.sh_colors(1, (coeffs[:, :2], coeffs[:, 2:]), means, campos, radii)
+    with pytest.raises(ValueError, match="3 coefficients"):
+        cpu_backend.sh_colors(1, (coeffs[:, :1], coeffs[:, 1:3]), means, campos, radii)

@@ -74,13 +74,20 @@ def rasterize(
     """Render Gaussians into C cameras.
 
     means [N,3] metres; quats [N,4] wxyz (any norm, zero = identity); scales [N,3] metres (linear);
-    opacities [N] in [0,1]; colors [N,3] RGB, [C,N,D] per camera, or SH coefficients [N,K,3] with ``sh_degree``;
+    opacities [N] in [0,1]; colors [N,3] RGB, [C,N,D] per camera, or SH coefficients with ``sh_degree``: [N,K,3],
+    or the pair (DC band [N,1,3], higher bands [N,K-1,3]) as the model keeps them (the cpu backend reads the pair
+    in place; the others concatenate it);
     viewmats [C,4,4]
     world-to-camera (OpenCV); Ks [C,3,3]. Returns image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1]
     (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
     radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
     """
     backend = resolve_backend(backend, means.is_cuda)
+    if isinstance(colors, (tuple, list)):
+        if sh_degree is None:
+            raise ValueError("colors as a pair (DC band, higher bands) are SH coefficients: give sh_degree")
+        if backend != "cpu":
+            colors = torch.cat(cpu_backend.split_sh(colors), 1)
     if backend == "gsplat":
         image, alpha, depth, meta = gsplat_backend.rasterize_gsplat(
             means,

@@ -141,26 +141,50 @@ def project(
 
 class _ShColors(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, coeffs, means, campos, radii, degree):
-        ctx.save_for_backward(coeffs, means, campos, radii)
+    def forward(ctx, dc, rest, means, campos, radii, degree):
+        ctx.save_for_backward(dc, rest, means, campos, radii)
         ctx.degree = degree
-        return load().sh_forward(coeffs, means, campos, radii, degree)
+        return load().sh_forward(dc, rest, means, campos, radii, degree)
 
     @staticmethod
     def backward(ctx, g_colors):
-        coeffs, means, campos, radii = ctx.saved_tensors
-        g_coeffs, g_means = load().sh_backward(coeffs, means, campos, radii, g_colors.contiguous(), ctx.degree)
-        return g_coeffs, g_means, None, None, None
+        dc, rest, means, campos, radii = ctx.saved_tensors
+        g_dc, g_rest, g_means = load().sh_backward(dc, rest, means, campos, radii, g_colors.contiguous(), ctx.degree)
+        # degree 0 reads no higher band: None, not a tensor of zeros (the trainer's first 1000 steps at 200k
+        # Gaussians would allocate, fault in and zero 36 MB a step for it, and Adam would step shN on zeros)
+        return g_dc, g_rest if ctx.degree > 0 else None, g_means, None, None, None
+
+
+def split_sh(coeffs) -> tuple[torch.Tensor, torch.Tensor]:
+    """SH coefficients as (DC band [N,1,3], higher bands [N,K-1,3]): a pair as given (the model's sh0 and shN), or
+    views of one [N,K,3] tensor."""
+    if isinstance(coeffs, (tuple, list)):
+        dc, rest = coeffs
+        if dc.dim() != 3 or dc.shape[1:] != (1, 3) or rest.dim() != 3 or rest.shape[0] != dc.shape[0]:
+            raise ValueError(
+                f"SH coefficients as a pair of shapes {tuple(dc.shape)} and {tuple(rest.shape)}: expected "
+                "[N, 1, 3] and [N, K - 1, 3]"
+            )
+        return dc, rest
+    return coeffs[:, :1], coeffs[:, 1:]
 
 
 def sh_colors(degree: int, coeffs, means, campos, radii):
     """``sh.sh_colors_reference`` in C++ for the (camera, Gaussian) pairs with radius > 0, in the dtype of ``means``:
-    coeffs [N,K,3], means [N,3], campos [C,3] camera centres, radii [C,N] -> colours [C,N,3], 0 (and no gradient)
-    where culled. Differentiable w.r.t. coeffs and means (through the view direction)."""
-    check_sh(degree, coeffs)
+    coeffs [N,K,3] or the pair (sh0 [N,1,3], shN [N,K-1,3]) (no concatenation: the trainer's path), means [N,3],
+    campos [C,3] camera centres, radii [C,N] -> colours [C,N,3], 0 (and no gradient) where culled. Differentiable
+    w.r.t. the coefficients and means (through the view direction); at degree 0 the higher bands get no gradient
+    (None: a pair's shN.grad stays None, and Adam leaves shN and its state alone until degree 1)."""
+    dc, rest = split_sh(coeffs)
+    check_sh(degree, rest.shape[1] + 1)
     dtype = means.dtype if means.dtype in (torch.float32, torch.float64) else torch.float32
+
+    def rows(t):  # unit strides inside a row; any row stride (views of one [N,K,3] tensor are read in place)
+        t = t.to(dtype)
+        return t if t.stride(-1) == 1 and (t.shape[1] <= 1 or t.stride(1) == 3) else t.contiguous()
+
     f = lambda t: t.to(dtype).contiguous()  # noqa: E731
-    return _ShColors.apply(f(coeffs), f(means), f(campos), radii.to(torch.int32).contiguous(), int(degree))
+    return _ShColors.apply(rows(dc), rows(rest), f(means), f(campos), radii.to(torch.int32).contiguous(), int(degree))
 
 
 class _Composite(torch.autograd.Function):

@@ -42,11 +42,13 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
     return torch.stack(out, -1)
 
 
-def check_sh(degree: int, coeffs: torch.Tensor) -> None:
-    """One clear error unless 0 <= ``degree`` <= 3 and coeffs [N, K, 3] has K >= (degree + 1)^2."""
-    if not 0 <= degree <= 3 or coeffs.shape[-2] < (degree + 1) ** 2:
+def check_sh(degree: int, coeffs: torch.Tensor | int) -> None:
+    """One clear error unless 0 <= ``degree`` <= 3 and coeffs [N, K, 3] (or K given as an int) has
+    K >= (degree + 1)^2."""
+    k = coeffs if isinstance(coeffs, int) else coeffs.shape[-2]
+    if not 0 <= degree <= 3 or k < (degree + 1) ** 2:
         raise ValueError(
-            f"sh_degree={degree} with {coeffs.shape[-2]} coefficients per channel: expected 0..3, "
+            f"sh_degree={degree} with {k} coefficients per channel: expected 0..3, "
             "and (degree + 1)^2 coefficients or more"
         )
 

@@ -17,10 +17,11 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
                                             torch::Tensor viewmats, torch::Tensor Ks, torch::Tensor radii,
                                             torch::Tensor g_m2d, torch::Tensor g_con, torch::Tensor g_dep, int64_t W,
                                             int64_t H, double near, double far, double eps2d);
-torch::Tensor sh_forward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos, torch::Tensor radii,
-                         int64_t degree);
-std::vector<torch::Tensor> sh_backward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos,
-                                       torch::Tensor radii, torch::Tensor g_colors, int64_t degree);
+torch::Tensor sh_forward(torch::Tensor dc, torch::Tensor rest, torch::Tensor means, torch::Tensor campos,
+                         torch::Tensor radii, int64_t degree);
+std::vector<torch::Tensor> sh_backward(torch::Tensor dc, torch::Tensor rest, torch::Tensor means,
+                                       torch::Tensor campos, torch::Tensor radii, torch::Tensor g_colors,
+                                       int64_t degree);
 std::vector<double> peak_fma(int64_t iters);
 std::vector<double> stream_copy(int64_t n, int64_t repeats);
 

@@ -2,7 +2,8 @@
 // parallel over Gaussians. The same arithmetic as the PyTorch reference (sh.py: sh_to_rgb with directions
 // normalised as (mean - camera centre) / max(|mean - camera centre|, 1e-12)): colour = sum_k basis_k(dir)
 // coeff_k + 0.5, clamped at 0. Only pairs with radius > 0 are evaluated (the compositor reads no other); a culled
-// pair's colour is 0 and passes no gradient. Templated on the scalar type (float for training, double for tests).
+// pair's colour is 0 and passes no gradient. The DC band and the higher bands come as two tensors (the model's
+// sh0 and shN: no per-step concatenation). Templated on the scalar type (float for training, double for tests).
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 #include <cmath>
@@ -66,14 +67,25 @@ inline T direction(const T* mean, const T* campos, T* v, T* u) {
   return norm;
 }
 
+// The coefficients of Gaussian n, in two parts so that the model's DC band and higher bands need no
+// concatenation: k = 0 at dc[n * sd + ch], k >= 1 at rest[n * sr + (k - 1) * 3 + ch] (sd, sr: row strides).
 template <typename T>
-void forward_impl(const T* coeffs, const T* means, const T* campos, const int32_t* rad, int64_t C, int64_t N,
-                  int64_t K, int degree, T* colors) {
+struct Coeffs {
+  const T* dc;
+  const T* rest;
+  int64_t sd, sr;
+  inline T operator()(int64_t n, int k, int ch) const {
+    return k == 0 ? dc[n * sd + ch] : rest[n * sr + (k - 1) * 3 + ch];
+  }
+};
+
+template <typename T>
+void forward_impl(Coeffs<T> co, const T* means, const T* campos, const int32_t* rad, int64_t C, int64_t N,
+                  int degree, T* colors) {
   const int k_used = (degree + 1) * (degree + 1);
   at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
     T b[16], v[3], u[3];
     for (int64_t n = b0; n < e0; ++n) {
-      const T* co = coeffs + n * K * 3;
       for (int64_t c = 0; c < C; ++c) {
         T* out = colors + (c * N + n) * 3;
         if (rad[c * N + n] <= 0) { out[0] = out[1] = out[2] = 0; continue; }
@@ -81,7 +93,7 @@ void forward_impl(const T* coeffs, const T* means, const T* campos, const int32_
         sh_basis<T>(degree, u[0], u[1], u[2], b, nullptr);
         for (int ch = 0; ch < 3; ++ch) {
           T s = T(0.5);
-          for (int k = 0; k < k_used; ++k) s += b[k] * co[k * 3 + ch];
+          for (int k = 0; k < k_used; ++k) s += b[k] * co(n, k, ch);
           out[ch] = s > 0 ? s : T(0);
         }
       }
@@ -89,15 +101,14 @@ void forward_impl(const T* coeffs, const T* means, const T* campos, const int32_
   });
 }
 
+// g_dc [N,1,3] and g_rest [N,K-1,3] (contiguous, zeroed) accumulate the coefficients' gradients.
 template <typename T>
-void backward_impl(const T* coeffs, const T* means, const T* campos, const int32_t* rad, const T* g_colors,
-                   int64_t C, int64_t N, int64_t K, int degree, T* g_coeffs, T* g_means) {
+void backward_impl(Coeffs<T> co, const T* means, const T* campos, const int32_t* rad, const T* g_colors,
+                   int64_t C, int64_t N, int64_t K, int degree, T* g_dc, T* g_rest, T* g_means) {
   const int k_used = (degree + 1) * (degree + 1);
   at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
     T b[16], d[16][3], v[3], u[3];
     for (int64_t n = b0; n < e0; ++n) {
-      const T* co = coeffs + n * K * 3;
-      T* gco = g_coeffs + n * K * 3;
       for (int64_t c = 0; c < C; ++c) {
         if (rad[c * N + n] <= 0) continue;
         const T norm = direction(means + n * 3, campos + c * 3, v, u);
@@ -105,15 +116,16 @@ void backward_impl(const T* coeffs, const T* means, const T* campos, const int32
         T graw[3];
         for (int ch = 0; ch < 3; ++ch) {  // clamp at 0 passes the gradient where the sum is >= 0
           T s = T(0.5);
-          for (int k = 0; k < k_used; ++k) s += b[k] * co[k * 3 + ch];
+          for (int k = 0; k < k_used; ++k) s += b[k] * co(n, k, ch);
           graw[ch] = s >= 0 ? g_colors[(c * N + n) * 3 + ch] : T(0);
         }
         T gu[3] = {0, 0, 0};
         for (int k = 0; k < k_used; ++k) {
+          T* gco = k == 0 ? g_dc + n * 3 : g_rest + (n * (K - 1) + k - 1) * 3;
           T gb = 0;
           for (int ch = 0; ch < 3; ++ch) {
-            gco[k * 3 + ch] += b[k] * graw[ch];
-            gb += co[k * 3 + ch] * graw[ch];
+            gco[ch] += b[k] * graw[ch];
+            gb += co(n, k, ch) * graw[ch];
           }
           if (degree > 0)
             for (int j = 0; j < 3; ++j) gu[j] += gb * d[k][j];
@@ -130,27 +142,47 @@ void backward_impl(const T* coeffs, const T* means, const T* campos, const int32
 
 }  // namespace
 
-// -> colours [C,N,3] of coefficients [N,K,3] (K >= (degree + 1)^2) seen from camera centres [C,3].
-torch::Tensor sh_forward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos, torch::Tensor radii,
-                         int64_t degree) {
-  const int64_t C = campos.size(0), N = means.size(0), K = coeffs.size(1);
+namespace {
+// dc [N,1,3] and rest [N,K-1,3], each with unit strides inside a row (any row stride: views of one [N,K,3] do).
+template <typename T>
+Coeffs<T> coeffs_of(const torch::Tensor& dc, const torch::Tensor& rest) {
+  TORCH_CHECK(dc.dim() == 3 && dc.size(1) == 1 && dc.size(2) == 3 && dc.stride(2) == 1,
+              "sh: dc must be [N,1,3] with unit channel stride");
+  TORCH_CHECK(rest.dim() == 3 && rest.size(2) == 3 && rest.size(0) == dc.size(0) &&
+                  (rest.size(1) == 0 || (rest.stride(2) == 1 && rest.stride(1) == 3)),
+              "sh: rest must be [N,K-1,3] with rows of unit stride");
+  return {dc.data_ptr<T>(), rest.data_ptr<T>(), dc.stride(0), rest.stride(0)};
+}
+}  // namespace
+
+// -> colours [C,N,3] of coefficients dc [N,1,3] + rest [N,K-1,3] (K >= (degree + 1)^2) seen from camera centres
+// campos [C,3].
+torch::Tensor sh_forward(torch::Tensor dc, torch::Tensor rest, torch::Tensor means, torch::Tensor campos,
+                         torch::Tensor radii, int64_t degree) {
+  const int64_t C = campos.size(0), N = means.size(0);
+  TORCH_CHECK(rest.size(1) + 1 >= (degree + 1) * (degree + 1), "sh_forward: too few coefficients for the degree");
   auto colors = torch::empty({C, N, 3}, means.options());
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "sh_forward", [&] {
-    forward_impl<scalar_t>(coeffs.data_ptr<scalar_t>(), means.data_ptr<scalar_t>(), campos.data_ptr<scalar_t>(),
-                           radii.data_ptr<int32_t>(), C, N, K, (int)degree, colors.data_ptr<scalar_t>());
+    forward_impl<scalar_t>(coeffs_of<scalar_t>(dc, rest), means.data_ptr<scalar_t>(), campos.data_ptr<scalar_t>(),
+                           radii.data_ptr<int32_t>(), C, N, (int)degree, colors.data_ptr<scalar_t>());
   });
   return colors;
 }
 
-// Gradients w.r.t. coefficients [N,K,3] and means [N,3] from those of the colours [C,N,3].
-std::vector<torch::Tensor> sh_backward(torch::Tensor coeffs, torch::Tensor means, torch::Tensor campos,
-                                       torch::Tensor radii, torch::Tensor g_colors, int64_t degree) {
-  const int64_t C = campos.size(0), N = means.size(0), K = coeffs.size(1);
-  auto g_coeffs = torch::zeros_like(coeffs), g_means = torch::zeros_like(means);
+// Gradients w.r.t. dc [N,1,3], rest [N,K-1,3] (contiguous; [N,0,3] at degree 0) and means [N,3] from those of
+// the colours [C,N,3].
+std::vector<torch::Tensor> sh_backward(torch::Tensor dc, torch::Tensor rest, torch::Tensor means,
+                                       torch::Tensor campos, torch::Tensor radii, torch::Tensor g_colors,
+                                       int64_t degree) {
+  const int64_t C = campos.size(0), N = means.size(0), K = rest.size(1) + 1;
+  // degree 0 reads no higher band: no [N, K-1, 3] of zeros for them (the caller passes None back instead)
+  auto g_dc = torch::zeros({N, 1, 3}, means.options());
+  auto g_rest = torch::zeros({N, degree > 0 ? K - 1 : 0, 3}, means.options());
+  auto g_means = torch::zeros_like(means);
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "sh_backward", [&] {
-    backward_impl<scalar_t>(coeffs.data_ptr<scalar_t>(), means.data_ptr<scalar_t>(), campos.data_ptr<scalar_t>(),
+    backward_impl<scalar_t>(coeffs_of<scalar_t>(dc, rest), means.data_ptr<scalar_t>(), campos.data_ptr<scalar_t>(),
                             radii.data_ptr<int32_t>(), g_colors.data_ptr<scalar_t>(), C, N, K, (int)degree,
-                            g_coeffs.data_ptr<scalar_t>(), g_means.data_ptr<scalar_t>());
+                            g_dc.data_ptr<scalar_t>(), g_rest.data_ptr<scalar_t>(), g_means.data_ptr<scalar_t>());
   });
-  return {g_coeffs, g_means};
+  return {g_dc, g_rest, g_means};
 }
