@@ -62,20 +62,51 @@ def git_commit() -> str:
 
 
 def _child(fn, args, queue):
-    out = fn(*args)
-    out["peak_rss_mb"] = peak_rss_mb()
-    queue.put(out)
+    try:
+        out = fn(*args)
+        out["peak_rss_mb"] = peak_rss_mb()
+    except BaseException as e:  # the parent re-raises it: without this it would wait forever for a result
+        import pickle
+        import traceback
+
+        text = traceback.format_exc()
+        try:
+            pickle.dumps(e)
+        except Exception:
+            e = RuntimeError(f"{type(e).__name__}: {e}")
+        queue.put(("error", e, text))
+        return
+    queue.put(("ok", out, None))
 
 
 def in_fresh_process(fn, *args) -> dict:
-    """Run fn(*args) -> dict in a new process (spawned, so its peak RSS is its own) and add 'peak_rss_mb'."""
+    """Run fn(*args) -> dict in a new process (spawned, so its peak RSS is its own) and add 'peak_rss_mb'.
+    An exception in the child is raised here (its traceback chained as the cause's message); a child that dies
+    without answering (killed, out of memory) raises RuntimeError instead of leaving the parent waiting."""
+    import queue as queue_mod
+
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
     p = ctx.Process(target=_child, args=(fn, args, q))
     p.start()
-    out = q.get()
+    while True:
+        try:
+            status, value, text = q.get(timeout=1.0)
+            break
+        except queue_mod.Empty:
+            if not p.is_alive():
+                try:  # it may have answered just before exiting
+                    status, value, text = q.get(timeout=1.0)
+                    break
+                except queue_mod.Empty:
+                    p.join()
+                    raise RuntimeError(
+                        f"{getattr(fn, '__name__', fn)} died in its fresh process (exit code {p.exitcode})"
+                    ) from None
     p.join()
-    return out
+    if status == "error":
+        raise value from RuntimeError(f"in the fresh process:\n{text}")
+    return value
 
 
 def emit(result: dict, out_path: str | None) -> dict:

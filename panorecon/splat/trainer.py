@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from .. import interrupts
 from ..device import device_record, reset_peak_memory, resolve_device, synchronize
@@ -59,6 +60,12 @@ class TrainConfig:
     backend: str = _f("auto", "rasterizer backend: auto, cpu, torch or gsplat (CUDA)")
     sh_degree: int = _f(3, "largest SH degree; the active degree grows every sh_increase_every steps")
     sh_increase_every: int = _f(1000, "steps between SH degree increases")
+    coarse_until: float = _f(
+        0.2,
+        "fraction of iters rendered at half the label size (res // 2, targets and teacher depth area-averaged, K "
+        "scaled): coarse to fine, each such step about a third of a full one; 0: every step at full size (labels "
+        "under 32 px always are)",
+    )
     strategy: str = _f("default", "densify/prune strategy: default (3DGS) or adaptive (§2.5 contribution pruning)")
     densify_until: float = _f(0.5, "fraction of iters after which no Gaussian is cloned or split (0: never densify)")
     grad_threshold: float = _f(2e-4, "mean NDC 2D-mean gradient above which a Gaussian is cloned or split")
@@ -137,9 +144,11 @@ def _render(
     return_contrib: bool = False,
     cameras=None,
     background=None,
+    res: int | None = None,
 ):
     """Render ``views`` (their cameras given as ``cameras`` = (viewmats, Ks) when already on the device) over
-    their sky background (``background`` [V, h, w, 3] when already on the device)."""
+    their sky background (``background`` [V, h, w, 3] when already on the device), ``res`` pixels square
+    (default ``cfg.res``; another size needs ``cameras`` and ``background`` of that size)."""
     dev = model.means.device
     V, K = cameras if cameras is not None else _cameras(views, dev)
     img, alpha, depth, meta = rasterize(
@@ -150,8 +159,8 @@ def _render(
         (model.sh0, model.shN),  # the cpu backend reads both in place: no [N, 16, 3] concatenation per step
         V,
         K,
-        cfg.res,
-        cfg.res,
+        res or cfg.res,
+        res or cfg.res,
         sh_degree=sh_degree,
         backend=backend,
         return_contrib=return_contrib,
@@ -272,6 +281,8 @@ def train(
     from tqdm import tqdm
 
     cfg = config
+    if not 0 <= cfg.coarse_until <= 1:
+        raise ValueError(f"coarse_until={cfg.coarse_until!r}: expected a fraction of iters in [0, 1]")
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"strategy={cfg.strategy!r}: expected one of {', '.join(STRATEGIES)}")
     if cfg.sky not in ("panorama", "none"):
@@ -373,6 +384,14 @@ def train(
     backgrounds = (
         None if labels[0].background is None else torch.from_numpy(np.stack([v.background for v in labels])).to(dev)
     )
+    # coarse to fine: the same labels at res // 2 (area means; pixel centres at i + 0.5, so K scales with the size)
+    coarse_steps = int(cfg.coarse_until * cfg.iters) if cfg.res >= 32 else 0  # SSIM's window needs 11 px and more
+    if coarse_steps > start:
+        small = cfg.res // 2
+        area = lambda x: None if x is None else F.interpolate(x.movedim(-1, 1), size=small, mode="area").movedim(1, -1)  # noqa: E731
+        teachers_small = None if teachers is None else area(teachers[..., None])[..., 0]
+        Ks_small = Ks * torch.tensor([[small / cfg.res], [small / cfg.res], [1.0]], device=dev)
+        coarse = (small, area(targets), teachers_small, Ks_small, area(backgrounds))
     first_bad = torch.full((), -1, dtype=torch.long, device=dev)  # first iteration with a non-finite loss
     synchronize(dev)
     t = time.perf_counter()
@@ -407,6 +426,9 @@ def train(
         opt.param_groups[0]["lr"] = lr
         k = int(order[it])
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every)
+        res, targets_it, teachers_it, Ks_it, backgrounds_it = (
+            coarse if it < coarse_steps else (cfg.res, targets, teachers, Ks, backgrounds)
+        )
         img, alpha, depth, meta = _render(
             model,
             [labels[k]],
@@ -414,12 +436,13 @@ def train(
             deg,
             backend,
             strategy.needs_contrib,
-            (viewmats[k : k + 1], Ks[k : k + 1]),
-            None if backgrounds is None else backgrounds[k : k + 1],
+            (viewmats[k : k + 1], Ks_it[k : k + 1]),
+            None if backgrounds_it is None else backgrounds_it[k : k + 1],
+            res,
         )
         meta["means2d"].retain_grad()
-        target = targets[k : k + 1]
-        teacher = None if teachers is None else teachers[k]
+        target = targets_it[k : k + 1]
+        teacher = None if teachers_it is None else teachers_it[k]
         expected_z = (depth / alpha.clamp_min(1e-6))[0, ..., 0]
         loss = total_loss(
             img,
@@ -434,7 +457,7 @@ def train(
         # recorded on the device and checked where the loop syncs anyway (history, checkpoints, the end)
         first_bad = torch.where((first_bad < 0) & ~torch.isfinite(loss.detach()), it, first_bad)
         loss.backward()
-        strategy.observe(model, meta, cfg.res, cfg.res)
+        strategy.observe(model, meta, res, res)
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)

@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from panorecon.io import PanoreconInputError
 from panorecon.metrics.lpips import lpips_or_reason
@@ -374,3 +375,64 @@ def test_held_out_views_are_judged_in_the_clouds_own_scale(setup, tmp_path):
     assert blind < aligned["held-out"]["psnr"] - 0.1
     with pytest.raises(ValueError, match="heldout_scale"):
         train(scene, pc, cfg(**c), tmp_path / "bad", depth_fn, progress=False, heldout_scale=0.0)
+
+
+def test_coarse_steps_render_at_half_resolution_then_full(setup, tmp_path, monkeypatch):
+    """coarse_until: its fraction of the steps renders at res // 2 against area-averaged targets, the rest at res;
+    the history's held-out samples are always at full resolution. Fractions outside [0, 1] are refused."""
+    scene, pc, depth_fn = setup
+    sizes = []
+    real = trainer_mod.rasterize
+
+    def spy(*a, **k):
+        sizes.append((a[7], torch.is_grad_enabled()))
+        return real(*a, **k)
+
+    monkeypatch.setattr(trainer_mod, "rasterize", spy)
+    m = train(scene, pc, cfg(iters=6, coarse_until=0.7, history_every=3), tmp_path / "c", depth_fn, progress=False)
+    steps = [w for w, grad in sizes if grad]  # the training steps (the evaluation renders run without grad)
+    assert steps == [16] * 4 + [32] * 2
+    assert all(w == 32 for w, grad in sizes if not grad)
+    assert [h["iteration"] for h in m["history"]] == [3, 6] and m["history"][0]["psnr"] > 5  # coarse target
+    sizes.clear()
+    train(scene, pc, cfg(iters=4, res=33, coarse_until=0.5), tmp_path / "odd", depth_fn, progress=False)
+    assert [w for w, grad in sizes if grad] == [16, 16, 33, 33]
+    sizes.clear()  # under 32 px the half size would be smaller than SSIM's 11-px window: full size throughout
+    train(scene, pc, cfg(iters=2, res=30, coarse_until=1.0), tmp_path / "small", depth_fn, progress=False)
+    assert [w for w, grad in sizes if grad] == [30, 30]
+    for bad in (dict(coarse_until=-0.1), dict(coarse_until=1.5)):
+        with pytest.raises(ValueError, match="coarse_until="):
+            train(scene, pc, cfg(**bad), tmp_path / "bad", depth_fn, progress=False)
+
+
+def test_a_half_resolution_render_is_the_2x2_mean_of_the_full_one():
+    """The coarse steps' camera (K halved: pixel centres at i + 0.5) against the reference, the full-resolution
+    render averaged 2x2: the same image to within the finer sampling's blur, and the same centroid; a K off by a
+    quarter pixel (the convention with pixel centres at integers) moves it by that quarter pixel."""
+    from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+    from panorecon.splat.rasterize import rasterize
+
+    g = torch.Generator().manual_seed(0)
+    n = 400
+    means = torch.randn(n, 3, generator=g) * torch.tensor([0.6, 0.6, 0.2]) + torch.tensor([0.0, 0.0, 4.0])
+    quats = torch.randn(n, 4, generator=g)
+    scales = torch.rand(n, 3, generator=g) * 0.15 + 0.15
+    opac, cols = torch.rand(n, generator=g) * 0.5 + 0.3, torch.rand(n, 3, generator=g)
+    V = torch.tensor(look_at_viewmat([0, 0, 0], [0, 0, 1]), dtype=torch.float32)[None]
+    K = torch.tensor(intrinsics_from_fov(64, 64, 60.0), dtype=torch.float32)[None]
+
+    def render(KK, size):
+        return rasterize(means, quats, scales, opac, cols, V, KK, size, size, backend="torch")[0][0]
+
+    def centroid(img):  # intensity-weighted pixel position (x, y), pixel centres at i + 0.5
+        w = img.sum(-1)
+        c = torch.arange(img.shape[0], dtype=torch.float32) + 0.5
+        return torch.stack([(w * c[None, :]).sum(), (w * c[:, None]).sum()]) / w.sum()
+
+    ref = F.avg_pool2d(render(K, 64).movedim(-1, 0)[None], 2)[0].movedim(0, -1)
+    half = K * torch.tensor([[0.5], [0.5], [1.0]])
+    shifted = half.clone()
+    shifted[0, :2, 2] -= 0.25  # the convention with pixel centres at integers
+    assert (render(half, 32) - ref).abs().mean() < 0.01  # the finer sampling's blur only
+    assert (centroid(render(half, 32)) - centroid(ref)).abs().max() < 0.03  # in pixels of the half-size view
+    assert (centroid(render(shifted, 32)) - centroid(ref)).abs().min() > 0.2
