@@ -664,6 +664,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)",
     )
+    tr.add_argument(
+        "--coarse-until",
+        type=T.FRACTION,
+        default=None,
+        help="fraction of the steps at half the label size, coarse to fine (default 0.2; labels of 256 px and more)",
+    )
     tr.add_argument("--seed", type=T.SEED, default=None)
     tr.add_argument("--no-progress", action="store_true")
     tr.add_argument(

@@ -111,6 +111,7 @@ JOBS = int_in(1, 1024, "job count")
 STEPS = int_in(1, 10_000_000, "step count")
 POSITIVE_FLOAT = float_in(1e-12, None, "positive number")
 FINITE_FLOAT = float_in(None, None, "number")
+FRACTION = float_in(0.0, 1.0, "fraction")
 
 
 def _read_only(path: Path) -> bool:

@@ -50,6 +50,12 @@ def _f(default, help: str):
     return field(default=default, metadata={"help": help})
 
 
+# The smallest half size that coarse steps render at. Measured: at 256 px labels (the target command of
+# docs/benchmarks.md) 0.2 of the steps at 128 px reached 32.35 dB held-out in 26 s instead of 55 s and ended at
+# 33.04 dB (33.02 without); at 64 px (the quick suite) 0.2 at 32 px cost 0.09 dB held-out on three of six rows.
+COARSE_MIN_SIZE = 128
+
+
 @dataclass
 class TrainConfig:
     iters: int = _f(3000, "optimisation steps (one pseudo-label view per step)")
@@ -64,7 +70,7 @@ class TrainConfig:
         0.2,
         "fraction of iters rendered at half the label size (res // 2, targets and teacher depth area-averaged, K "
         "scaled): coarse to fine, each such step about a third of a full one; 0: every step at full size (labels "
-        "under 32 px always are)",
+        "under 2 x COARSE_MIN_SIZE = 256 px always are)",
     )
     strategy: str = _f("default", "densify/prune strategy: default (3DGS) or adaptive (§2.5 contribution pruning)")
     densify_until: float = _f(0.5, "fraction of iters after which no Gaussian is cloned or split (0: never densify)")
@@ -385,7 +391,7 @@ def train(
         None if labels[0].background is None else torch.from_numpy(np.stack([v.background for v in labels])).to(dev)
     )
     # coarse to fine: the same labels at res // 2 (area means; pixel centres at i + 0.5, so K scales with the size)
-    coarse_steps = int(cfg.coarse_until * cfg.iters) if cfg.res >= 32 else 0  # SSIM's window needs 11 px and more
+    coarse_steps = int(cfg.coarse_until * cfg.iters) if cfg.res // 2 >= COARSE_MIN_SIZE else 0
     if coarse_steps > start:
         small = cfg.res // 2
         area = lambda x: None if x is None else F.interpolate(x.movedim(-1, 1), size=small, mode="area").movedim(1, -1)  # noqa: E731

@@ -389,6 +389,7 @@ def test_coarse_steps_render_at_half_resolution_then_full(setup, tmp_path, monke
         return real(*a, **k)
 
     monkeypatch.setattr(trainer_mod, "rasterize", spy)
+    monkeypatch.setattr(trainer_mod, "COARSE_MIN_SIZE", 16)  # tiny labels stand for 256 px ones here
     m = train(scene, pc, cfg(iters=6, coarse_until=0.7, history_every=3), tmp_path / "c", depth_fn, progress=False)
     steps = [w for w, grad in sizes if grad]  # the training steps (the evaluation renders run without grad)
     assert steps == [16] * 4 + [32] * 2
@@ -397,7 +398,7 @@ def test_coarse_steps_render_at_half_resolution_then_full(setup, tmp_path, monke
     sizes.clear()
     train(scene, pc, cfg(iters=4, res=33, coarse_until=0.5), tmp_path / "odd", depth_fn, progress=False)
     assert [w for w, grad in sizes if grad] == [16, 16, 33, 33]
-    sizes.clear()  # under 32 px the half size would be smaller than SSIM's 11-px window: full size throughout
+    sizes.clear()  # a half size under COARSE_MIN_SIZE: full size throughout
     train(scene, pc, cfg(iters=2, res=30, coarse_until=1.0), tmp_path / "small", depth_fn, progress=False)
     assert [w for w, grad in sizes if grad] == [30, 30]
     for bad in (dict(coarse_until=-0.1), dict(coarse_until=1.5)):
