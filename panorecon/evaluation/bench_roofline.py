@@ -80,12 +80,12 @@ def machine_peaks(
         t = now()
         work = ext.peak_fma(fma_iters)[1]
         rates["fma"].append(work / (now() - t))
-        # the copy's own time: a call of 5 copies minus a call of 1, so that the allocation and first touch of
-        # the two arrays inside each call (page faults: several times the copies themselves) cancel
+        # the copies' own time: a call of 17 copies minus a call of 1, so that the allocation and first touch of
+        # the two arrays inside each call (page faults: ~3 copies' time, and uneven) cancel
         t = now()
         ext.stream_copy(copy_floats, 1)
         t1 = now()
-        work = ext.stream_copy(copy_floats, 5)[1] * 4 / 5
+        work = ext.stream_copy(copy_floats, 17)[1] * 16 / 17
         rates["copy"].append(work / max((now() - t1) - (t1 - t), 1e-9))
     return {
         "peak_gflops": max(rates["fma"]) / 1e9,
