@@ -50,9 +50,10 @@ def _f(default, help: str):
     return field(default=default, metadata={"help": help})
 
 
-# The smallest half size that coarse steps render at. Measured: at 256 px labels (the target command of
-# docs/benchmarks.md) 0.2 of the steps at 128 px reached 32.35 dB held-out in 26 s instead of 55 s and ended at
-# 33.04 dB (33.02 without); at 64 px (the quick suite) 0.2 at 32 px cost 0.09 dB held-out on three of six rows.
+# The smallest half size that coarse steps render at. Measured (docs/benchmarks.md, issue 30): at 256 px labels
+# (the target command) 0.2 of the steps at 128 px, with the SH change beside them, end at 33.04 dB held-out and
+# reach 32.35 dB at 26.5-28.4 s, against 33.02 dB and 58.1 s before both (c9ed316); at 64 px labels (the quick
+# suite) 0.2 of the steps at 32 px cost 0.09 dB held-out on three of six rows.
 COARSE_MIN_SIZE = 128
 
 
@@ -392,6 +393,7 @@ def train(
     )
     # coarse to fine: the same labels at res // 2 (area means; pixel centres at i + 0.5, so K scales with the size)
     coarse_steps = int(cfg.coarse_until * cfg.iters) if cfg.res // 2 >= COARSE_MIN_SIZE else 0
+    coarse = None  # (size, targets, teacher depths, Ks, backgrounds) of the coarse steps, if any are left
     if coarse_steps > start:
         small = cfg.res // 2
         area = lambda x: None if x is None else F.interpolate(x.movedim(-1, 1), size=small, mode="area").movedim(1, -1)  # noqa: E731
