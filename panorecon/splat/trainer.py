@@ -158,6 +158,7 @@ def _render(
     (default ``cfg.res``; another size needs ``cameras`` and ``background`` of that size)."""
     dev = model.means.device
     V, K = cameras if cameras is not None else _cameras(views, dev)
+    size = res or cfg.res
     img, alpha, depth, meta = rasterize(
         model.means,
         model.quats,
@@ -166,8 +167,8 @@ def _render(
         (model.sh0, model.shN),  # the cpu backend reads both in place: no [N, 16, 3] concatenation per step
         V,
         K,
-        res or cfg.res,
-        res or cfg.res,
+        size,
+        size,
         sh_degree=sh_degree,
         backend=backend,
         return_contrib=return_contrib,

@@ -11,7 +11,7 @@ import torch
 
 from . import cpu_backend, gsplat_backend
 from .projection import project_gaussians, quat_to_rotmat
-from .sh import sh_colors_reference, sh_to_rgb
+from .sh import sh_colors_reference, sh_to_rgb, split_sh
 from .torch_backend import rasterize_tiles
 
 BACKENDS = ("auto", "torch", "cpu", "gsplat")
@@ -87,7 +87,7 @@ def rasterize(
         if sh_degree is None:
             raise ValueError("colors as a pair (DC band, higher bands) are SH coefficients: give sh_degree")
         if backend != "cpu":
-            colors = torch.cat(cpu_backend.split_sh(colors), 1)
+            colors = torch.cat(split_sh(colors), 1)
     if backend == "gsplat":
         image, alpha, depth, meta = gsplat_backend.rasterize_gsplat(
             means,

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from .sh import check_sh
+from .sh import check_sh, split_sh
 
 log = logging.getLogger("panorecon.splat")
 _SOURCES = [
@@ -153,20 +153,6 @@ class _ShColors(torch.autograd.Function):
         # degree 0 reads no higher band: None, not a tensor of zeros (the trainer's first 1000 steps at 200k
         # Gaussians would allocate, fault in and zero 36 MB a step for it, and Adam would step shN on zeros)
         return g_dc, g_rest if ctx.degree > 0 else None, g_means, None, None, None
-
-
-def split_sh(coeffs) -> tuple[torch.Tensor, torch.Tensor]:
-    """SH coefficients as (DC band [N,1,3], higher bands [N,K-1,3]): a pair as given (the model's sh0 and shN), or
-    views of one [N,K,3] tensor."""
-    if isinstance(coeffs, (tuple, list)):
-        dc, rest = coeffs
-        if dc.dim() != 3 or dc.shape[1:] != (1, 3) or rest.dim() != 3 or rest.shape[0] != dc.shape[0]:
-            raise ValueError(
-                f"SH coefficients as a pair of shapes {tuple(dc.shape)} and {tuple(rest.shape)}: expected "
-                "[N, 1, 3] and [N, K - 1, 3]"
-            )
-        return dc, rest
-    return coeffs[:, :1], coeffs[:, 1:]
 
 
 def sh_colors(degree: int, coeffs, means, campos, radii):

@@ -53,6 +53,20 @@ def check_sh(degree: int, coeffs: torch.Tensor | int) -> None:
         )
 
 
+def split_sh(coeffs) -> tuple[torch.Tensor, torch.Tensor]:
+    """SH coefficients as (DC band [N,1,3], higher bands [N,K-1,3]): a pair as given (the model's sh0 and shN), or
+    views of one [N,K,3] tensor."""
+    if isinstance(coeffs, (tuple, list)):
+        dc, rest = coeffs
+        if dc.dim() != 3 or dc.shape[1:] != (1, 3) or rest.dim() != 3 or rest.shape[0] != dc.shape[0]:
+            raise ValueError(
+                f"SH coefficients as a pair of shapes {tuple(dc.shape)} and {tuple(rest.shape)}: expected "
+                "[N, 1, 3] and [N, K - 1, 3]"
+            )
+        return dc, rest
+    return coeffs[:, :1], coeffs[:, 1:]
+
+
 def sh_to_rgb(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
     """coeffs [N, K, 3] (K >= (degree + 1)^2), dirs [C, N, 3] unit -> colours [C, N, 3] = SH + 0.5, >= 0."""
     check_sh(degree, coeffs)
