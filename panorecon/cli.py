@@ -670,6 +670,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="fraction of the steps at half the label size, coarse to fine (default 0.2; labels of 256 px and more)",
     )
+    tr.add_argument(
+        "--densify-from", type=T.STEP, default=None, help="step of the first clone/split (default 100; 3DGS: 500)"
+    )
     tr.add_argument("--seed", type=T.SEED, default=None)
     tr.add_argument("--no-progress", action="store_true")
     tr.add_argument(

@@ -82,8 +82,10 @@ def test_float32_matches_the_reference():
     out_t, out_c, g_t, g_c, kept = project_both(torch.float32)
     assert torch.equal(out_c[3], out_t[3]), "radii"
     for name, a, b in zip(("means2d", "conics", "depths"), out_c[:3], out_t[:3]):
-        a, b = a[kept], b[kept]  # culled pairs (behind the camera) hold placeholder values
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4, msg=name)
+        culled = ~kept[..., None] if a.dim() == 3 else ~kept
+        assert (a * culled == 0).all() and (b * culled == 0).all(), f"{name} of culled pairs is 0"
+        assert (a.abs() * culled).sum() == 0
     for name, a, b in zip(("means", "quats", "scales"), g_c, g_t):
         scale = float(b.abs().max())
         torch.testing.assert_close(a / scale, b / scale, rtol=1e-3, atol=2e-5, msg=f"gradient of {name}")
@@ -128,3 +130,39 @@ def test_radius_is_capped_for_enormous_gaussians():
     img_c = rasterize(means, quats, scales, opac, cols, Vs[:1], Ks[:1], 24, 16, backend="cpu")[0]
     assert torch.isfinite(img_c).all() and img_c[..., 0].min() > 0.4
     torch.testing.assert_close(img_c, img_t, atol=2e-5, rtol=1e-3)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_early_cull_keeps_every_gaussian_that_reaches_the_image(dtype):
+    """The C++ forward skips the covariance of pairs whose centre lies far enough off the image (a bound on the
+    radius from the largest scale); Gaussians of every size and shape around the image's edges, many of them
+    reaching in by a pixel or two, get the reference's radii exactly, and a culled pair's outputs are 0. float64
+    takes scales from 1e-4 to 20 m; float32 up to 3 m, since beyond that near-singular needles round differently in
+    the two implementations whether or not the cull is there (2 of these 20,000 radii differ without it)."""
+    W, H = 40, 30
+    Ks = torch.tensor(intrinsics_from_fov(W, H, 60.0), dtype=dtype)[None]
+    Vs = torch.tensor(look_at_viewmat([0, 0, 0], [0, 0, 1]), dtype=dtype)[None]
+    g = torch.Generator().manual_seed(7)
+    n = 20_000
+    z = torch.rand(n, generator=g, dtype=dtype) * 5 + 0.05
+    u = torch.rand(n, generator=g, dtype=dtype) * 3 * W - W  # centres from one image width left to one right
+    v = torch.rand(n, generator=g, dtype=dtype) * 3 * H - H
+    K = Ks[0]
+    means = torch.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], -1)
+    means = (torch.linalg.inv(Vs[0]) @ torch.cat([means, torch.ones(n, 1, dtype=dtype)], 1).T).T[:, :3]
+    quats = torch.randn(n, 4, generator=g, dtype=dtype)
+    top = 3.0 if dtype == torch.float64 else 1.1  # ln of the largest scale: 20 m or 3 m; needles throughout
+    scales = torch.exp(torch.rand(n, 3, generator=g, dtype=dtype) * (top + 9) - 9)
+    out_t = project_gaussians(means, quats, scales, Vs, Ks, W, H)
+    out_c = cpu_backend.project(means, quats, scales, Vs, Ks, W, H)
+    kept = out_t[3] > 0
+    assert 1000 < kept.sum() < n - 1000, "both kept and culled pairs"
+    off = (out_t[0][..., 0] < 0) | (out_t[0][..., 0] > W) | (out_t[0][..., 1] < 0) | (out_t[0][..., 1] > H)
+    assert (kept & off).sum() > 500, "many kept Gaussians are centred off the image"
+    assert torch.equal(out_c[3], out_t[3]), "radii"
+    # means2d and depths; conics too in float64 (a needle's conic is ill-conditioned in float32, cull or not)
+    for a, b in zip(
+        out_c[:3] if dtype == torch.float64 else out_c[:3:2], out_t[:3] if dtype == torch.float64 else out_t[:3:2]
+    ):
+        torch.testing.assert_close(a, b, rtol=1e-4 if dtype == torch.float32 else 1e-12, atol=1e-4)
+    assert (out_c[1][~kept] == 0).all() and (out_c[0][~kept] == 0).all() and (out_c[2][~kept] == 0).all()

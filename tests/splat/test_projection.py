@@ -37,16 +37,20 @@ def test_conics_match_the_matrix_form_with_gradients():
     means[0] = torch.tensor([2.0, 9.0, 0.0], dtype=torch.float64)  # far outside the image: clamped Jacobian
     quats = torch.randn(n, 4, generator=g, dtype=torch.float64)
     scales = torch.rand(n, 3, generator=g, dtype=torch.float64) * 0.3 + 0.01
+    scales[0] = 20.0  # large enough to reach the image (a culled pair's conic is 0)
     V = torch.tensor(look_at_viewmat([0.1, 0, 0.2], [1, 0.2, 0]), dtype=torch.float64)
     K = torch.tensor(intrinsics_from_fov(48, 32, 70.0), dtype=torch.float64)
     leaves = [t.clone().requires_grad_(True) for t in (means, quats, scales)]
-    _, conics, _, _ = project_gaussians(*leaves, V[None], K[None], 48, 32, eps2d=0.3)
+    _, conics, _, radii = project_gaussians(*leaves, V[None], K[None], 48, 32, eps2d=0.3)
+    kept = radii[0] > 0
+    assert kept[0] and kept.sum() > 40, "the clamped one and most others reach the image"
     ref_leaves = [t.clone().requires_grad_(True) for t in (means, quats, scales)]
     cov = reference_cov2d(*ref_leaves, V, K, 48, 32) + 0.3 * torch.eye(2, dtype=torch.float64)
     inv = torch.linalg.inv(cov)
     ref_conics = torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1)
-    torch.testing.assert_close(conics[0], ref_conics, rtol=1e-10, atol=1e-12)
-    w = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    assert (conics[0][~kept] == 0).all(), "a culled pair's conic is 0"
+    torch.testing.assert_close(conics[0][kept], ref_conics[kept], rtol=1e-10, atol=1e-12)
+    w = torch.randn(n, 3, generator=g, dtype=torch.float64) * kept[:, None]
     (conics[0] * w).sum().backward()
     (ref_conics * w).sum().backward()
     for a, b in zip(leaves, ref_leaves):

@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import math
 
@@ -85,6 +86,8 @@ def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
     [
         ("densify_until", 1.5),
         ("densify_until", -0.1),
+        ("densify_from", -1),
+        ("densify_from", 1.5),
         ("grad_threshold", 0.0),
         ("init_opacity", 1.0),
         ("init_opacity", 0.0),
@@ -375,6 +378,19 @@ def test_held_out_views_are_judged_in_the_clouds_own_scale(setup, tmp_path):
     assert blind < aligned["held-out"]["psnr"] - 0.1
     with pytest.raises(ValueError, match="heldout_scale"):
         train(scene, pc, cfg(**c), tmp_path / "bad", depth_fn, progress=False, heldout_scale=0.0)
+
+
+def test_the_first_clone_or_split_is_at_densify_from(setup, tmp_path):
+    """densify_from is the strategy's first refinement step (then every 100 steps): with a gradient threshold every
+    visible Gaussian passes, the model first grows at the first multiple of 100 at or after densify_from."""
+    scene, pc, depth_fn = setup
+    for start, first_growth in ((100, 100), (150, 200)):
+        c = cfg(iters=250, res=16, labels=8, heldout=0, history_every=50, checkpoint_every=0)
+        c = dataclasses.replace(c, densify_from=start, densify_until=1.0, grad_threshold=1e-12)
+        m = train(scene, pc, c, tmp_path / str(start), depth_fn, progress=False)
+        counts = {h["iteration"]: h["gaussians"] for h in m["history"]}
+        assert all(counts[i] == m["initial_gaussians"] for i in counts if i < first_growth), counts
+        assert counts[first_growth] > m["initial_gaussians"], counts
 
 
 def test_coarse_steps_render_at_half_resolution_then_full(setup, tmp_path, monkeypatch):

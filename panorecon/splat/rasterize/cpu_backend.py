@@ -180,14 +180,14 @@ class _Composite(torch.autograd.Function):
         image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max = ext.forward(
             means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib
         )
-        ctx.save_for_backward(means2d, conics, colors, opacities, depths, T_final, last, offsets, ids)
+        ctx.save_for_backward(means2d, conics, colors, opacities, depths, radii, T_final, last, offsets, ids)
         ctx.size = (width, height, tile)
         ctx.mark_non_differentiable(w_sum, w_max, t_max)
         return image, alpha, depth, w_sum, w_max, t_max
 
     @staticmethod
     def backward(ctx, g_image, g_alpha, g_depth, *_contrib_grads):
-        means2d, conics, colors, opacities, depths, T_final, last, offsets, ids = ctx.saved_tensors
+        means2d, conics, colors, opacities, depths, radii, T_final, last, offsets, ids = ctx.saved_tensors
         width, height, tile = ctx.size
         g = [
             t.contiguous() if t is not None else torch.zeros_like(ref)
@@ -203,6 +203,7 @@ class _Composite(torch.autograd.Function):
             colors,
             opacities,
             depths,
+            radii,
             T_final,
             last,
             offsets,

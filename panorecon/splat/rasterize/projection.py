@@ -5,7 +5,7 @@ at (j + 0.5, i + 0.5). A Gaussian is kept in a camera when near < z < far; its 2
 J W Sigma W^T J^T + eps2d * I (eps2d = 0.3 px^2 low-pass, as in 3DGS and gsplat), with the Jacobian taken at
 the mean's view direction clamped to the image's extent plus 30 % of the half field of view (gsplat's rule,
 which keeps Gaussians far outside the image from exploding). radius = ceil(3 sqrt(largest eigenvalue)), at
-most 2^30 px; radius 0 marks a culled one.
+most 2^30 px; radius 0 marks a culled one, whose means2d, conics and depth are 0 (gsplat's convention).
 """
 
 from __future__ import annotations
@@ -93,4 +93,6 @@ def project_gaussians(
     valid = valid & on_image.detach() & torch.isfinite(radii)
     # capped at 2^30 px so that the int32 conversion is defined for any finite radius
     radii = torch.where(valid, radii.clamp_max(2.0**30), torch.zeros_like(radii)).to(torch.int32)
-    return means2d, conics, torch.where(valid, z, torch.zeros_like(z)), radii
+    zero = torch.zeros((), dtype=z.dtype, device=z.device)
+    means2d, conics = torch.where(valid[..., None], means2d, zero), torch.where(valid[..., None], conics, zero)
+    return means2d, conics, torch.where(valid, z, zero), radii

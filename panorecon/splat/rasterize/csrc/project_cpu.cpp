@@ -40,12 +40,13 @@ inline void quat_rotmat(const T* q4, T* Rq, T* qn, T& norm) {
   Rq[6] = 2 * (x * z - w * y); Rq[7] = 2 * (y * z + w * x); Rq[8] = 1 - 2 * (x * x + y * y);
 }
 
-// The quantities of one (camera, Gaussian) pair that forward and backward share.
+// The quantities of one (camera, Gaussian) pair that forward and backward share: view() the camera-space mean and
+// the Jacobian's entries, cov() the 2D covariance (a b; b c) from them and M = rot(q) diag(s).
 template <typename T>
 struct Pair {
   T p[3], zs, rx, ry, j00, j02, j11, j12, T0[3], T1[3], A0[3], A1[3], a, b, c, det;
   bool z_ok;
-  void compute(const Camera<T>& cam, const T* m, const T* M, T near, T far, T eps2d) {
+  void view(const Camera<T>& cam, const T* m, T near, T far) {
     for (int r = 0; r < 3; ++r)
       p[r] = cam.R[r * 3] * m[0] + cam.R[r * 3 + 1] * m[1] + cam.R[r * 3 + 2] * m[2] + cam.t[r];
     z_ok = p[2] > near && p[2] < far;
@@ -53,6 +54,8 @@ struct Pair {
     rx = std::min(std::max(p[0] / zs, cam.lo_x), cam.hi_x);
     ry = std::min(std::max(p[1] / zs, cam.lo_y), cam.hi_y);
     j00 = cam.fx / zs; j02 = -cam.fx * rx / zs; j11 = cam.fy / zs; j12 = -cam.fy * ry / zs;
+  }
+  void cov(const Camera<T>& cam, const T* M, T eps2d) {
     for (int k = 0; k < 3; ++k) {
       T0[k] = j00 * cam.R[k] + j02 * cam.R[6 + k];
       T1[k] = j11 * cam.R[3 + k] + j12 * cam.R[6 + k];
@@ -66,35 +69,97 @@ struct Pair {
     c = A1[0] * A1[0] + A1[1] * A1[1] + A1[2] * A1[2] + eps2d;
     det = a * c - b * b;
   }
+  void compute(const Camera<T>& cam, const T* m, const T* M, T near, T far, T eps2d) {
+    view(cam, m, near, far);
+    cov(cam, M, eps2d);
+  }
 };
 
+// Sets maybe[k] = 0 for the Gaussians n0 + k (k < len) that camera cam surely culls: z outside (near, far) by a
+// margin, or the mean farther off the image, on one axis, than r_max, a bound on the radius the exact path computes:
+// lambda_max(A A^T + eps I) <= |A|_F^2 + eps <= |J|_F^2 s_max^2 + eps (A = J R rot(q) diag(s)), and the radius
+// reads lambda as mid + sqrt(max(mid^2 - det, 0.01)) <= a + c + 0.1, so r = ceil(3 sqrt(lambda)) <= 3 sqrt(Q) + 1
+// with Q = |J|_F^2 s_max^2 + 2 eps + 0.1. The distances here use 1 / z where the exact path divides (a few ulps
+// apart), which the margins (1 % on Q, 2 px plus 1e-5 of the coordinates) cover; a NaN or an infinite Q leaves the
+// pair to the exact path. Vectors across Gaussians.
+template <typename T>
+void maybe_kept(const Camera<T>& cam, const T* means, const T* scales, int64_t n0, int64_t len, T near, T far,
+                T eps2d, T W, T H, uint8_t* maybe) {
+  T R[9], t[3];  // locals: the byte stores to maybe may alias anything, and would force reloads of cam's fields
+  for (int i = 0; i < 9; ++i) R[i] = cam.R[i];
+  for (int i = 0; i < 3; ++i) t[i] = cam.t[i];
+  const T fx = cam.fx, fy = cam.fy, cx = cam.cx, cy = cam.cy, lo_x = cam.lo_x, hi_x = cam.hi_x, lo_y = cam.lo_y,
+          hi_y = cam.hi_y, z_lo = near * T(0.999) - T(1e-6), z_hi = far * T(1.001), q0 = 2 * eps2d + T(0.1);
+  typedef T vec __attribute__((vector_size(32)));  // GCC/Clang vector extensions: 8 floats or 4 doubles
+  constexpr int L = 32 / sizeof(T);
+  const vec zero = {};
+  auto vmax = [](vec a, vec b) { return a > b ? a : b; };
+  auto vabs = [](vec a) { return a < 0 ? -a : a; };
+  for (int64_t k0 = 0; k0 < len; k0 += L) {
+    vec mx, my, mz, sx;  // the lanes past len repeat the last Gaussian
+    for (int i = 0; i < L; ++i) {
+      const int64_t n = n0 + std::min<int64_t>(k0 + i, len - 1);
+      mx[i] = means[n * 3]; my[i] = means[n * 3 + 1]; mz[i] = means[n * 3 + 2];
+      sx[i] = std::max(std::max(std::abs(scales[n * 3]), std::abs(scales[n * 3 + 1])), std::abs(scales[n * 3 + 2]));
+    }
+    const vec x = R[0] * mx + R[1] * my + R[2] * mz + t[0];
+    const vec y = R[3] * mx + R[4] * my + R[5] * mz + t[1];
+    const vec z = R[6] * mx + R[7] * my + R[8] * mz + t[2];
+    const auto z_maybe = (z > z_lo) & (z < z_hi);
+    const vec inv = (zero + 1) / (z_maybe ? z : zero + 1);
+    const vec rx = vmax(x * inv, zero + lo_x), ry = vmax(y * inv, zero + lo_y);
+    const vec rxc = rx < hi_x ? rx : zero + hi_x, ryc = ry < hi_y ? ry : zero + hi_y;
+    const vec jf = (fx * fx * (1 + rxc * rxc) + fy * fy * (1 + ryc * ryc)) * inv * inv;
+    const vec Q = (jf * sx * sx + q0) * T(1.01);
+    const vec u = fx * x * inv + cx, v = fy * y * inv + cy;
+    const vec du = vmax(vmax(-u, u - W), zero), dv = vmax(vmax(-v, v - H), zero);
+    const vec d = vmax(du, dv) - 2 - T(1e-5) * (vabs(u) + vabs(v));  // a NaN in u or v stays NaN here
+    const auto keep = z_maybe & ~((d >= 0) & (d * d >= 9 * Q));
+    for (int i = 0; i < L && k0 + i < len; ++i) maybe[k0 + i] = keep[i] != 0;
+  }
+}
+
+// A culled pair's outputs are all zero (gsplat's convention). Most pairs of a narrow view are culled, so the exact
+// path (the covariance, its inverse and radius) runs only for the pairs that maybe_kept lets through; a pair it stops
+// would have been culled by the exact path too, so the radii are the same.
 template <typename T>
 void forward_impl(const T* means, const T* quats, const T* scales, const T* V, const T* K, int64_t C, int64_t N,
                   int64_t W, int64_t H, T near, T far, T eps2d, T* m2d, T* con, T* dep, int32_t* rad) {
   std::vector<Camera<T>> cams;
   for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
+  constexpr int64_t CHUNK = 256;
   at::parallel_for(0, N, 2048, [&](int64_t b0, int64_t e0) {
-    for (int64_t n = b0; n < e0; ++n) {
-      T Rq[9], qn[4], norm, M[9];
-      quat_rotmat(quats + n * 4, Rq, qn, norm);
-      for (int i = 0; i < 9; ++i) M[i] = Rq[i] * scales[n * 3 + i % 3];
+    uint8_t maybe[CHUNK];
+    for (int64_t n0 = b0; n0 < e0; n0 += CHUNK) {
+      const int64_t len = std::min(CHUNK, e0 - n0);
       for (int64_t c = 0; c < C; ++c) {
         const Camera<T>& cam = cams[c];
-        Pair<T> P;
-        P.compute(cam, means + n * 3, M, near, far, eps2d);
-        const int64_t cn = c * N + n;
-        const bool ok = P.z_ok && P.det > 0;
-        const T det_s = ok ? P.det : T(1);
-        con[cn * 3] = P.c / det_s; con[cn * 3 + 1] = -P.b / det_s; con[cn * 3 + 2] = P.a / det_s;
-        const T mid = T(0.5) * (P.a + P.c);
-        const T lam = mid + std::sqrt(std::max(mid * mid - det_s, T(0.01)));
-        const T r = std::ceil(3 * std::sqrt(lam));
-        const T u = cam.fx * P.p[0] / P.zs + cam.cx, v = cam.fy * P.p[1] / P.zs + cam.cy;
-        m2d[cn * 2] = u; m2d[cn * 2 + 1] = v;
-        const bool on_image = u + r > 0 && u - r < W && v + r > 0 && v - r < H;
-        const bool keep = ok && on_image && std::isfinite(r);
-        dep[cn] = keep ? P.p[2] : T(0);
-        rad[cn] = keep ? (int32_t)std::min(r, T(1 << 30)) : 0;  // the cap keeps the conversion defined
+        maybe_kept(cam, means, scales, n0, len, near, far, eps2d, (T)W, (T)H, maybe);
+        for (int64_t k = 0; k < len; ++k) {
+          const int64_t n = n0 + k, cn = c * N + n;
+          m2d[cn * 2] = m2d[cn * 2 + 1] = con[cn * 3] = con[cn * 3 + 1] = con[cn * 3 + 2] = dep[cn] = T(0);
+          rad[cn] = 0;
+          if (!maybe[k]) continue;
+          Pair<T> P;
+          P.view(cam, means + n * 3, near, far);
+          if (!P.z_ok) continue;
+          T Rq[9], qn[4], norm, M[9];
+          quat_rotmat(quats + n * 4, Rq, qn, norm);
+          for (int i = 0; i < 9; ++i) M[i] = Rq[i] * scales[n * 3 + i % 3];
+          P.cov(cam, M, eps2d);
+          const bool ok = P.det > 0;
+          const T det_s = ok ? P.det : T(1);
+          const T mid = T(0.5) * (P.a + P.c);
+          const T lam = mid + std::sqrt(std::max(mid * mid - det_s, T(0.01)));
+          const T r = std::ceil(3 * std::sqrt(lam));
+          const T u = cam.fx * P.p[0] / P.zs + cam.cx, v = cam.fy * P.p[1] / P.zs + cam.cy;
+          const bool on_image = u + r > 0 && u - r < W && v + r > 0 && v - r < H;
+          if (!(ok && on_image && std::isfinite(r))) continue;
+          m2d[cn * 2] = u; m2d[cn * 2 + 1] = v;
+          con[cn * 3] = P.c / det_s; con[cn * 3 + 1] = -P.b / det_s; con[cn * 3 + 2] = P.a / det_s;
+          dep[cn] = P.p[2];
+          rad[cn] = (int32_t)std::min(r, T(1 << 30));  // the cap keeps the conversion defined
+        }
       }
     }
   });
@@ -174,7 +239,7 @@ void backward_impl(const T* means, const T* quats, const T* scales, const T* V, 
 
 }  // namespace
 
-// -> means2d [C,N,2] (pixels), conics [C,N,3], depths [C,N] (camera z, 0 where culled), radii [C,N] int32.
+// -> means2d [C,N,2] (pixels), conics [C,N,3], depths [C,N] (camera z), radii [C,N] int32; all 0 where culled.
 std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
                                            torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
                                            double near, double far, double eps2d) {

@@ -95,16 +95,17 @@ Bins bin(const float* m2d, const float* depth, const int32_t* radii, int64_t C, 
 }
 
 // Squared pixel distance beyond which a Gaussian's alpha is surely below 1/255:
-// sigma >= 0.5 lambda_min(conic) |d|^2, and o exp(-sigma) < 1/255 once sigma > ln(255 o). -1: never visible.
-std::vector<float> cutoffs(const float* con, const float* op, int64_t C, int64_t N) {
+// sigma >= 0.5 lambda_min(conic) |d|^2, and o exp(-sigma) < 1/255 once sigma > ln(255 o). -1: never visible
+// (also every culled pair, radius <= 0, which no tile lists: no logarithm is spent on those).
+std::vector<float> cutoffs(const float* con, const float* op, const int32_t* radii, int64_t C, int64_t N) {
   std::vector<float> cut(C * N);
   at::parallel_for(0, C * N, 4096, [&](int64_t b, int64_t e) {
     for (int64_t cn = b; cn < e; ++cn) {
       const float o = op[cn % N];
+      if (radii[cn] <= 0 || o * 255.f <= 1.f) { cut[cn] = -1.f; continue; }
       const float a = con[cn * 3], bb = con[cn * 3 + 1], c = con[cn * 3 + 2];
       const float mid = 0.5f * (a + c), det = a * c - bb * bb;
       const float lmin = mid - std::sqrt(std::max(mid * mid - det, 0.f));
-      if (o * 255.f <= 1.f) { cut[cn] = -1.f; continue; }
       // a small margin keeps the test conservative under float rounding
       cut[cn] = lmin > 0.f ? 2.f * std::log(o * 255.f) / lmin * 1.001f + 1e-3f : INFINITY;
     }
@@ -378,7 +379,8 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
                                    int64_t H, int64_t tile, bool want_contrib) {
   const int64_t C = means2d.size(0), N = means2d.size(1);
   const Bins bins = bin(means2d.data_ptr<float>(), depths.data_ptr<float>(), radii.data_ptr<int32_t>(), C, N, W, H, tile);
-  const std::vector<float> cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), C, N);
+  const std::vector<float> cut =
+      cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), radii.data_ptr<int32_t>(), C, N);
   const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
                   opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.data(), N};
   auto f = torch::TensorOptions().dtype(torch::kFloat32);
@@ -430,38 +432,45 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   return {image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max};
 }
 
-// Gradients w.r.t. means2d [C,N,2], conics [C,N,3], colors [C,N,3], opacities [N], depths [C,N].
+// Gradients w.r.t. means2d [C,N,2], conics [C,N,3], colors [C,N,3], opacities [N], depths [C,N]; 0 for culled pairs.
+// Each thread sums its tiles' gradients into its own buffer of 10 floats per visible pair (radius > 0: a fraction
+// of C N in a narrow view, so the buffers that are zeroed and reduced every step shrink with it), then the threads'
+// buffers are reduced into the outputs, pair by pair.
 std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
-                                    torch::Tensor opacities, torch::Tensor depths, torch::Tensor T_final,
-                                    torch::Tensor last, torch::Tensor offsets, torch::Tensor ids, torch::Tensor g_image,
-                                    torch::Tensor g_alpha, torch::Tensor g_depth, int64_t W, int64_t H, int64_t tile) {
-  const int64_t C = means2d.size(0), N = means2d.size(1);
+                                    torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii,
+                                    torch::Tensor T_final, torch::Tensor last, torch::Tensor offsets, torch::Tensor ids,
+                                    torch::Tensor g_image, torch::Tensor g_alpha, torch::Tensor g_depth, int64_t W,
+                                    int64_t H, int64_t tile) {
+  const int64_t C = means2d.size(0), N = means2d.size(1), CN = C * N;
   const float* Tf = T_final.data_ptr<float>();
   const int32_t* ls = last.data_ptr<int32_t>();
   const int64_t* off = offsets.data_ptr<int64_t>();
   const int32_t* gid = ids.data_ptr<int32_t>();
+  const int32_t* rad = radii.data_ptr<int32_t>();
   const float *gi = g_image.data_ptr<float>(), *ga = g_alpha.data_ptr<float>(), *gd = g_depth.data_ptr<float>();
-  const std::vector<float> cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), C, N);
+  const std::vector<float> cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), rad, C, N);
   const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
                   opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.data(), N};
+  TORCH_CHECK(CN < INT32_MAX, "compositing backward: ", CN, " (camera, Gaussian) pairs; at most 2^31 - 1");
+  std::vector<int32_t> slot(CN);  // the pair's row in the per-thread buffers; -1 where culled
+  int32_t V = 0;
+  for (int64_t cn = 0; cn < CN; ++cn) slot[cn] = rad[cn] > 0 ? V++ : -1;
   const int64_t threads = at::get_num_threads();
-  // per thread: means2d 2, conics 3, colors 3, depth 1 per (c, n); opacity 1 per n
-  const int64_t stride = C * N * 9 + N;
-  std::vector<float> buf(threads * stride, 0.f);
+  constexpr int64_t G = 10;  // per visible pair: means2d x y, conic a b c, rgb, z, opacity
+  std::vector<float> buf(threads * V * G, 0.f);
   const int64_t tiles = ((W + tile - 1) / tile) * ((H + tile - 1) / tile);
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
-    float* acc = buf.data() + at::get_thread_num() * stride;
-    float *gm = acc, *gc = acc + C * N * 2, *gcol = acc + C * N * 5, *gz = acc + C * N * 8, *go = acc + C * N * 9;
-    TileGaussians G;
+    float* acc = buf.data() + at::get_thread_num() * V * G;
+    TileGaussians Gs;
     BlockLists L;
     BlockGrad px;
-    std::vector<float> grad;  // this tile's gradients, 10 per Gaussian: m2d x y, conic a b c, rgb, z, opacity
+    std::vector<float> grad;  // this tile's gradients, G per tile Gaussian
     for (int64_t t = b; t < e; ++t) {
       const int64_t c = t / tiles;
       const int64_t n_g = off[t + 1] - off[t];
-      G.gather(gid + off[t], n_g, c, in);
-      grad.assign(n_g * 10, 0.f);
-      build_block_lists(L, G, t % tiles, W, H, tile);
+      Gs.gather(gid + off[t], n_g, c, in);
+      grad.assign(n_g * G, 0.f);
+      build_block_lists(L, Gs, t % tiles, W, H, tile);
       int64_t blk = 0;
       for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
         const int32_t* list = L.list(blk++);
@@ -473,24 +482,34 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
           px.ga[v][u] = inside ? ga[p] : 0.f; px.T_end[v][u] = inside ? Tf[p] : 1.f;
           px.end[v][u] = inside ? (float)ls[p] : 0.f;
         }
-        composite_block_backward(G, list, i0, j0, px, grad.data());
+        composite_block_backward(Gs, list, i0, j0, px, grad.data());
       });
-      for (int64_t l = 0; l < n_g; ++l) {  // one scatter per tile into this thread's [C, N] buffers
-        const float* q = grad.data() + l * 10;
-        const int64_t n = G.id[l], cn = c * N + n;
-        gm[cn * 2] += q[0]; gm[cn * 2 + 1] += q[1];
-        gc[cn * 3] += q[2]; gc[cn * 3 + 1] += q[3]; gc[cn * 3 + 2] += q[4];
-        gcol[cn * 3] += q[5]; gcol[cn * 3 + 1] += q[6]; gcol[cn * 3 + 2] += q[7];
-        gz[cn] += q[8]; go[n] += q[9];
+      for (int64_t l = 0; l < n_g; ++l) {  // one scatter per tile into this thread's buffer
+        float* a = acc + (int64_t)slot[c * N + Gs.id[l]] * G;
+        for (int64_t k = 0; k < G; ++k) a[k] += grad[l * G + k];
       }
     }
   });
   auto f = torch::TensorOptions().dtype(torch::kFloat32);
-  auto out = torch::zeros({stride}, f);
-  float* o = out.data_ptr<float>();
-  for (int64_t th = 0; th < threads; ++th)
-    for (int64_t k = 0; k < stride; ++k) o[k] += buf[th * stride + k];
-  return {out.narrow(0, 0, C * N * 2).view({C, N, 2}), out.narrow(0, C * N * 2, C * N * 3).view({C, N, 3}),
-          out.narrow(0, C * N * 5, C * N * 3).view({C, N, 3}), out.narrow(0, C * N * 9, N).clone(),
-          out.narrow(0, C * N * 8, C * N).view({C, N})};
+  auto gm = torch::zeros({C, N, 2}, f), gc = torch::zeros({C, N, 3}, f), gcol = torch::zeros({C, N, 3}, f),
+       gz = torch::zeros({C, N}, f), go = torch::zeros({N}, f);
+  float *pm = gm.data_ptr<float>(), *pc = gc.data_ptr<float>(), *pcol = gcol.data_ptr<float>(),
+        *pz = gz.data_ptr<float>(), *po = go.data_ptr<float>();
+  at::parallel_for(0, N, 4096, [&](int64_t b, int64_t e) {  // by Gaussian: its cameras' opacity terms sum in one place
+    for (int64_t n = b; n < e; ++n)
+      for (int64_t c = 0; c < C; ++c) {
+        const int64_t cn = c * N + n;
+        if (slot[cn] < 0) continue;
+        float sum[G] = {0};
+        for (int64_t th = 0; th < threads; ++th) {
+          const float* a = buf.data() + (th * V + slot[cn]) * G;
+          for (int64_t k = 0; k < G; ++k) sum[k] += a[k];
+        }
+        pm[cn * 2] = sum[0]; pm[cn * 2 + 1] = sum[1];
+        pc[cn * 3] = sum[2]; pc[cn * 3 + 1] = sum[3]; pc[cn * 3 + 2] = sum[4];
+        pcol[cn * 3] = sum[5]; pcol[cn * 3 + 1] = sum[6]; pcol[cn * 3 + 2] = sum[7];
+        pz[cn] = sum[8]; po[n] += sum[9];
+      }
+  });
+  return {gm, gc, gcol, go, gz};
 }
