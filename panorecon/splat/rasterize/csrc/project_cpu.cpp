@@ -129,23 +129,29 @@ void forward_impl(const T* means, const T* quats, const T* scales, const T* V, c
   for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
   constexpr int64_t CHUNK = 256;
   at::parallel_for(0, N, 2048, [&](int64_t b0, int64_t e0) {
-    uint8_t maybe[CHUNK];
+    std::vector<uint8_t> maybe(C * CHUNK);  // camera c's mask at c * CHUNK
     for (int64_t n0 = b0; n0 < e0; n0 += CHUNK) {
       const int64_t len = std::min(CHUNK, e0 - n0);
-      for (int64_t c = 0; c < C; ++c) {
-        const Camera<T>& cam = cams[c];
-        maybe_kept(cam, means, scales, n0, len, near, far, eps2d, (T)W, (T)H, maybe);
-        for (int64_t k = 0; k < len; ++k) {
-          const int64_t n = n0 + k, cn = c * N + n;
+      for (int64_t c = 0; c < C; ++c)
+        maybe_kept(cams[c], means, scales, n0, len, near, far, eps2d, (T)W, (T)H, maybe.data() + c * CHUNK);
+      for (int64_t k = 0; k < len; ++k) {
+        const int64_t n = n0 + k;
+        T Rq[9], qn[4], norm, M[9];
+        bool have_M = false;  // built once per Gaussian, for its first camera that keeps it
+        for (int64_t c = 0; c < C; ++c) {
+          const Camera<T>& cam = cams[c];
+          const int64_t cn = c * N + n;
           m2d[cn * 2] = m2d[cn * 2 + 1] = con[cn * 3] = con[cn * 3 + 1] = con[cn * 3 + 2] = dep[cn] = T(0);
           rad[cn] = 0;
-          if (!maybe[k]) continue;
+          if (!maybe[c * CHUNK + k]) continue;
           Pair<T> P;
           P.view(cam, means + n * 3, near, far);
           if (!P.z_ok) continue;
-          T Rq[9], qn[4], norm, M[9];
-          quat_rotmat(quats + n * 4, Rq, qn, norm);
-          for (int i = 0; i < 9; ++i) M[i] = Rq[i] * scales[n * 3 + i % 3];
+          if (!have_M) {
+            quat_rotmat(quats + n * 4, Rq, qn, norm);
+            for (int i = 0; i < 9; ++i) M[i] = Rq[i] * scales[n * 3 + i % 3];
+            have_M = true;
+          }
           P.cov(cam, M, eps2d);
           const bool ok = P.det > 0;
           const T det_s = ok ? P.det : T(1);
