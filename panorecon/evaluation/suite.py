@@ -79,7 +79,7 @@ RANGES = {
     "labels": T.LABELS,
     "seed": T.SEED,
     "sh_degree": T.int_in(0, 3, "SH degree"),
-    "sh_increase_every": T.int_in(1, None),
+    "sh_increase_every": T.int_in(0, None),
     "fov_deg": T.float_in(1.0, 170.0, "field of view"),
     "depth_scale": T.float_in(1e-9, 1e9, "depth scale"),
 }

@@ -20,10 +20,9 @@ import torch
 
 from ..io import PanoreconInputError, atomic_write
 from ..io.files import first_sentence
+from .model import PARAM_NAMES
 
 log = logging.getLogger("panorecon.train")
-
-MODEL_KEYS = ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")
 
 
 def cloud_digest(point_cloud) -> str:
@@ -86,10 +85,10 @@ def _malformed(state, iters: int) -> str | None:
     if not isinstance(it, int) or not 0 < it < iters:
         return f"malformed (iteration {it!r} outside 1..{iters - 1})"
     model = state.get("model")
-    if not isinstance(model, dict) or any(not isinstance(model.get(k), torch.Tensor) for k in MODEL_KEYS):
+    if not isinstance(model, dict) or any(not isinstance(model.get(k), torch.Tensor) for k in PARAM_NAMES):
         return "malformed (model parameters missing)"
-    n = {len(model[k]) for k in MODEL_KEYS}
-    if len(n) != 1 or not all(torch.isfinite(model[k]).all() for k in MODEL_KEYS):
+    n = {len(model[k]) for k in PARAM_NAMES}
+    if len(n) != 1 or not all(torch.isfinite(model[k]).all() for k in PARAM_NAMES):
         return "malformed (parameters of different lengths, or NaN/Inf)"
     for k in ("optimizer", "strategy", "history", "rng"):
         if k not in state:

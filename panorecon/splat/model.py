@@ -13,6 +13,8 @@ from torch import nn
 from ..geometry import PointCloud
 from .rasterize.sh import C0
 
+PARAM_NAMES = ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")  # in the constructor's order
+
 
 def nearest_neighbour_scale(xyz: np.ndarray, k: int = 3) -> np.ndarray:
     """Mean distance (metres) from each point to its k nearest other points, [N] float64 (SciPy KD-tree,
@@ -57,6 +59,11 @@ class GaussianModel(nn.Module):
         shN = torch.zeros(n, (sh_degree + 1) ** 2 - 1, 3)
         # copy: the parameters must never share memory with the caller's point cloud
         return cls(torch.tensor(pc.xyz, dtype=torch.float32), quats, log_s, logit, sh0, shN)
+
+    def rows(self, index: torch.Tensor) -> GaussianModel:
+        """A model of copies of rows ``index`` [M]: leaves of their own, so a step's gradients land there
+        ([M, ...], not [N, ...]) and this model is untouched until the optimizer writes them back."""
+        return GaussianModel(*[getattr(self, n).detach().index_select(0, index) for n in PARAM_NAMES])
 
     def __len__(self) -> int:
         return self.means.shape[0]

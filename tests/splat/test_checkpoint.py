@@ -9,7 +9,8 @@ import torch
 
 from panorecon.geometry import PointCloud
 from panorecon.io import PanoreconInputError
-from panorecon.splat.checkpoint import MODEL_KEYS, checkpoint_inputs, cloud_digest, load_checkpoint, save_checkpoint
+from panorecon.splat.checkpoint import checkpoint_inputs, cloud_digest, load_checkpoint, save_checkpoint
+from panorecon.splat.model import PARAM_NAMES
 
 
 class _Scene:
@@ -17,7 +18,7 @@ class _Scene:
 
 
 def _state(n=5, iteration=10):
-    params = {k: torch.nn.Parameter(torch.randn(n, 3)) for k in MODEL_KEYS}
+    params = {k: torch.nn.Parameter(torch.randn(n, 3)) for k in PARAM_NAMES}
     opt = torch.optim.Adam(list(params.values()), lr=1e-3)
     sum(p.sum() for p in params.values()).backward()
     opt.step()
