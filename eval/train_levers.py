@@ -51,9 +51,7 @@ def main(argv=None) -> dict:
         key, _, value = item.partition("=")
         if key not in types:
             ap.error(f"{item!r}: {key!r} is not a TrainConfig field ({', '.join(types)})")
-        if types[key] is bool and value.lower() not in ("true", "false", "1", "0"):
-            ap.error(f"{item!r}: {key} is true or false")
-        setattr(cfg, key, value.lower() in ("true", "1") if types[key] is bool else types[key](value))
+        setattr(cfg, key, types[key](value))
     scene = load_scene(args.scene, 512)
     pc, report = run_source(scene, "fibonacci", args.teacher, args.views, fusion_config_for(torch.device("cpu")))
     if args.depth_target == "fused":

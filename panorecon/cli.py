@@ -673,12 +673,6 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--densify-from", type=T.STEP, default=None, help="step of the first clone/split (default 100; 3DGS: 500)"
     )
-    tr.add_argument(
-        "--visible-adam",
-        action="store_true",
-        default=None,
-        help="Adam steps only the Gaussians each step's view sees (gsplat's visible_adam; not on gsplat)",
-    )
     tr.add_argument("--seed", type=T.SEED, default=None)
     tr.add_argument("--no-progress", action="store_true")
     tr.add_argument(

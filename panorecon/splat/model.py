@@ -60,11 +60,6 @@ class GaussianModel(nn.Module):
         # copy: the parameters must never share memory with the caller's point cloud
         return cls(torch.tensor(pc.xyz, dtype=torch.float32), quats, log_s, logit, sh0, shN)
 
-    def rows(self, index: torch.Tensor) -> GaussianModel:
-        """A model of copies of rows ``index`` [M]: leaves of their own, so a step's gradients land there
-        ([M, ...], not [N, ...]) and this model is untouched until the optimizer writes them back."""
-        return GaussianModel(*[getattr(self, n).detach().index_select(0, index) for n in PARAM_NAMES])
-
     def __len__(self) -> int:
         return self.means.shape[0]
 

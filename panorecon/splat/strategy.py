@@ -68,11 +68,8 @@ class DefaultStrategy:
         for k, v in state.items():
             setattr(self, k, v)
 
-    def observe(
-        self, model: GaussianModel, meta: dict, width: int, height: int, index: torch.Tensor | None = None
-    ) -> None:
-        """After backward: accumulate the NDC-scaled 2D mean gradient of visible Gaussians. ``meta`` is of a render
-        of all of ``model``, or with ``index`` [M] of its rows ``index`` (``GaussianModel.rows``)."""
+    def observe(self, model: GaussianModel, meta: dict, width: int, height: int) -> None:
+        """After backward: accumulate the NDC-scaled 2D mean gradient of visible Gaussians."""
         g = meta["means2d"].grad
         if g is None:
             return
@@ -81,13 +78,8 @@ class DefaultStrategy:
             self.grad_sum, self.count = torch.zeros(n, device=g.device), torch.zeros(n, device=g.device)
         scaled = g.detach() * torch.tensor([width / 2, height / 2], device=g.device)
         vis = meta["radii"] > 0
-        grad_norms, seen = (scaled.norm(dim=-1) * vis).sum(0), vis.sum(0).to(self.count.dtype)
-        if index is None:
-            self.grad_sum += grad_norms
-            self.count += seen
-        else:
-            self.grad_sum.index_add_(0, index, grad_norms)
-            self.count.index_add_(0, index, seen)
+        self.grad_sum += (scaled.norm(dim=-1) * vis).sum(0)
+        self.count += vis.sum(0)
 
     def prune_mask(self, model: GaussianModel, it: int) -> torch.Tensor:
         """[N] bool: Gaussians to remove at this refinement (3DGS: opacity below ``prune_opacity``)."""
@@ -181,22 +173,19 @@ class AdaptiveStrategy(DefaultStrategy):
     def prune_stop(self) -> int:
         return self.prune_until or 2 * self.refine_stop
 
-    def observe(
-        self, model: GaussianModel, meta: dict, width: int, height: int, index: torch.Tensor | None = None
-    ) -> None:
-        super().observe(model, meta, width, height, index)
+    def observe(self, model: GaussianModel, meta: dict, width: int, height: int) -> None:
+        super().observe(model, meta, width, height)
         n = len(model)
         if self.top_contrib is None or len(self.top_contrib) != n:
             dev = model.means.device
             self.top_contrib = torch.zeros(n, self.top_k, device=dev)
             self.trans_max, self.seen = torch.zeros(n, device=dev), torch.zeros(n, dtype=torch.bool, device=dev)
-        rows = slice(None) if index is None else index
         to_reference = self.reference_size**2 / (width * height)
         for c in range(meta["weight_sum"].shape[0]):
-            both = torch.cat([self.top_contrib[rows], meta["weight_sum"][c, :, None].float() * to_reference], 1)
-            self.top_contrib[rows] = both.topk(self.top_k, dim=1).values
-            self.trans_max[rows] = torch.maximum(self.trans_max[rows], meta["trans_max"][c].float())
-            self.seen[rows] |= meta["radii"][c] > 0
+            both = torch.cat([self.top_contrib, meta["weight_sum"][c, :, None].float() * to_reference], 1)
+            self.top_contrib = both.topk(self.top_k, dim=1).values
+            self.trans_max = torch.maximum(self.trans_max, meta["trans_max"][c].float())
+            self.seen |= meta["radii"][c] > 0
 
     def threshold(self, it: int) -> float:
         """The contribution threshold at iteration ``it`` (pixels of a ``reference_size``² view); 0 during the

@@ -39,9 +39,8 @@ from .labels import (
 )
 from .losses import ssim, total_loss
 from .model import PARAM_NAMES, GaussianModel
-from .optim import VisibleAdam
 from .ply import save_ply
-from .rasterize import rasterize, resolve_backend, visible_gaussians
+from .rasterize import rasterize, resolve_backend
 from .strategy import STRATEGIES, edit_parameters
 
 log = logging.getLogger("panorecon.train")
@@ -72,7 +71,7 @@ class TrainConfig:
         "steps between increases of the active SH degree, up to sh_degree (3DGS: 1000); 0: it stays 0. Every "
         "pseudo-label camera sits at the panorama centre, so all of them see a Gaussian along one direction: its "
         "higher bands add the same colour to every label as its DC band can, and only change what other positions "
-        "see (docs/benchmarks.md: on the target command degree 0 ends at the same held-out PSNR, 23 % faster)",
+        "see (docs/benchmarks.md: on the target command it ends 0.02 dB higher in 24-28 % less training time)",
     )
     coarse_until: float = _f(
         0.2,
@@ -86,14 +85,6 @@ class TrainConfig:
         "step of the first clone/split (then every 100 steps until densify_until; 3DGS: 500 of 30,000). On the "
         "target command of docs/benchmarks.md, from step 500 held-out PSNR dips for 300 steps while the model grows "
         "at full size; from step 100 it grows during the cheap coarse steps (32.35 dB at step 600 instead of 900)",
-    )
-    visible_adam: bool = _f(
-        False,
-        "each step renders copies of the Gaussians its view sees and Adam updates only those rows (gsplat's "
-        "visible_adam, Taming 3DGS's selective Adam; splat/optim.py), not every row (dense Adam); not on the gsplat "
-        "backend. On the target command of docs/benchmarks.md: 6 % less training time, held-out 0.06 dB lower at "
-        "the end and 32.35 dB first at step 700 instead of 600 (a Gaussian's first steps move it less without the "
-        "momentum of the steps that do not see it)",
     )
     densify_until: float = _f(0.5, "fraction of iters after which no Gaussian is cloned or split (0: never densify)")
     grad_threshold: float = _f(2e-4, "mean NDC 2D-mean gradient above which a Gaussian is cloned or split")
@@ -282,7 +273,7 @@ def best_heldout(history: list[dict], reason: str | None = None) -> dict | str:
 def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
     """One Adam group per parameter (named, for the strategies' edits), eps 1e-15 as in 3DGS; the fused
     kernel (one pass per tensor, ~3x faster than the per-tensor loop at 100k+ Gaussians on CPU)."""
-    return VisibleAdam(
+    return torch.optim.Adam(
         [{"params": [getattr(model, n)], "lr": lr, "name": n} for n, lr in groups], eps=1e-15, fused=True
     )
 
@@ -340,7 +331,6 @@ def train(
     reset_peak_memory(dev)
     backend = resolve_backend(cfg.backend, dev.type == "cuda")  # on first use this loads (or builds) the C++ backend
     seconds["backend"] = time.perf_counter() - t0
-    visible_adam = cfg.visible_adam and backend != "gsplat"
     t = time.perf_counter()
     labels = make_pseudo_labels(scene, cfg.labels, cfg.res, cfg.fov_deg, cfg.layout, depth_fn)
     heldout = []
@@ -462,24 +452,8 @@ def train(
         res, targets_it, teachers_it, Ks_it, backgrounds_it = (
             coarse if it < coarse_steps else (cfg.res, targets, teachers, Ks, backgrounds)
         )
-        # visible Adam: the step renders copies of the rows the view sees, and Adam writes those rows back
-        index = (
-            visible_gaussians(
-                model.means,
-                model.quats,
-                model.scales(),
-                viewmats[k : k + 1],
-                Ks_it[k : k + 1],
-                res,
-                res,
-                backend=backend,
-            )
-            if visible_adam
-            else None
-        )
-        step_model = model if index is None else model.rows(index)
         img, alpha, depth, meta = _render(
-            step_model,
+            model,
             [labels[k]],
             cfg,
             deg,
@@ -506,12 +480,9 @@ def train(
         # recorded on the device and checked where the loop syncs anyway (history, checkpoints, the end)
         first_bad = torch.where((first_bad < 0) & ~torch.isfinite(loss.detach()), it, first_bad)
         loss.backward()
-        strategy.observe(model, meta, res, res, index)
-        if index is None:
-            opt.step()
-            opt.zero_grad(set_to_none=True)
-        else:
-            opt.step_visible(index, {n: getattr(step_model, n).grad for n in PARAM_NAMES})
+        strategy.observe(model, meta, res, res)
+        opt.step()
+        opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
         sync_now = (
             (cfg.history_every and (it + 1) % cfg.history_every == 0)

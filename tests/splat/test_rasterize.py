@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-from panorecon.splat.rasterize import cpu_backend, project_gaussians, quat_to_rotmat, rasterize, visible_gaussians
+from panorecon.splat.rasterize import project_gaussians, quat_to_rotmat, rasterize
 from panorecon.splat.rasterize.sh import C0, sh_basis
 
 
@@ -144,40 +144,3 @@ def test_random_scenes_are_finite_and_bounded(n, seed):
     img, alpha, depth, _ = rasterize(means, quats, scales, opac, colors, V, K, 24, 16, backend="torch")
     assert torch.isfinite(img).all() and (alpha >= 0).all() and (alpha <= 1 + 1e-6).all()
     assert (img <= 1 + 1e-5).all()  # colours in [0, 1] composite to at most 1
-
-
-@pytest.mark.parametrize("backend", ["torch", "cpu"])
-def test_rendering_the_visible_gaussians_alone_gives_the_same_image_and_gradients(backend):
-    """visible_gaussians is what a step may render instead of the whole model (visible Adam): the same image, alpha
-    and depth, the same gradients at those rows, and a zero gradient at every other row."""
-    if backend == "cpu" and not cpu_backend.available():
-        pytest.skip("the C++ rasterizer could not be built here")
-    means, quats, scales, opac, colors = scene(300, seed=5, dtype=torch.float32)
-    means[:100, 0] *= -1  # a third behind the camera
-    means[100:150, 1] += 6  # and some beside the image
-    sh = torch.cat(
-        [((colors - 0.5) / C0)[:, None], 0.2 * torch.randn(300, 8, 3, generator=torch.Generator().manual_seed(2))], 1
-    )
-    V, K = camera(dtype=torch.float32)
-    index = visible_gaussians(means, quats, scales, V, K, 32, 24, backend=backend)
-    assert 0 < len(index) <= 150 and torch.equal(index, index.sort().values) and bool((index >= 150).all())
-
-    def render(rows):
-        leaves = [t[rows].clone().requires_grad_(True) for t in (means, quats, scales, opac, sh)]
-        img, alpha, depth, _ = rasterize(*leaves, V, K, 32, 24, sh_degree=2, backend=backend)
-        g = torch.Generator().manual_seed(1)
-        weights = [torch.rand(t.shape, generator=g) for t in (img, alpha, depth)]
-        sum(((t * w).sum() for t, w in zip((img, alpha, depth), weights))).backward()
-        return (img, alpha, depth), [t.grad for t in leaves]
-
-    full, full_grads = render(slice(None))
-    part, part_grads = render(index)
-    for a, b in zip(full, part):
-        torch.testing.assert_close(a.detach(), b.detach(), rtol=0, atol=1e-6)
-    others = torch.ones(300, dtype=torch.bool)
-    others[index] = False
-    for gf, gp in zip(full_grads, part_grads):
-        torch.testing.assert_close(gf[index], gp, rtol=1e-5, atol=1e-6)
-        assert not gf[others].any()
-    with pytest.raises(ValueError, match="gsplat"):
-        visible_gaussians(means, quats, scales, V, K, 32, 24, backend="gsplat")

@@ -149,30 +149,4 @@ def rasterize(
     return image, alpha, depth, meta
 
 
-@torch.no_grad()
-def visible_gaussians(
-    means,
-    quats,
-    scales,
-    viewmats,
-    Ks,
-    width: int,
-    height: int,
-    *,
-    near_plane: float = 0.01,
-    far_plane: float = 1e10,
-    eps2d: float = 0.3,
-    backend: str = "auto",
-) -> torch.Tensor:
-    """[M] int64, ascending: the Gaussians that ``rasterize`` with the same arguments composites in some camera
-    (radius > 0), the only rows its gradients can reach; computed without gradients by the backend's own
-    projection (cpu: C++, torch: the reference). Not for gsplat, whose radii are its own (see gsplat_backend)."""
-    if backend == "gsplat" or resolve_backend(backend, means.is_cuda) == "gsplat":
-        raise ValueError("visible_gaussians: gsplat culls by its own radii; use the cpu or torch backend")
-    backend = resolve_backend(backend, means.is_cuda)
-    project = cpu_backend.project if backend == "cpu" else project_gaussians
-    radii = project(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane, eps2d)[3]
-    return torch.nonzero((radii > 0).any(0)).flatten()
-
-
-__all__ = ["rasterize", "visible_gaussians", "project_gaussians", "quat_to_rotmat", "sh_to_rgb", "BACKENDS"]
+__all__ = ["rasterize", "project_gaussians", "quat_to_rotmat", "sh_to_rgb", "BACKENDS"]
