@@ -5,11 +5,17 @@ one after the other on a shared machine, where wall seconds mean little.
     git archive OLD | tar -x -C /tmp/old
     PYTHONPATH=/tmp/old python eval/compositor_builds.py --save /tmp/old.pt
     PYTHONPATH=. python eval/compositor_builds.py --against /tmp/old.pt      # alternate a few times
+    python eval/compositor_builds.py --run OUT --views 8 --no-contrib     # a trained model's own label views
 
-Scene: ``bench_rasterizer.scene`` (one 60° camera), ``--size`` and ``--gaussians`` (default 256², 100k);
-gradients of a fixed random weighting of image, alpha and depth. Prints one JSON line: median CPU milliseconds of
-the forward (with contributions) and backward, and with ``--against`` the largest |difference| of every output
-and gradient (relative to the largest magnitude for gradients).
+Scene: ``bench_rasterizer.scene`` (one 60° camera), ``--size`` and ``--gaussians`` (default 256², 100k); or with
+``--run`` a ``panorecon train`` output (its point_cloud.ply and cameras.json): ``--views`` of its pseudo-label
+cameras, spread over them, colours from the DC band (the trained degree), the trained opacities and shapes, which
+blend far more Gaussians per pixel than the random scene. Gradients of a fixed random weighting of image, alpha
+and depth. Prints one JSON line: median CPU milliseconds of the forward (with contributions unless
+``--no-contrib``) and backward over views and repeats, and with ``--against`` the largest |difference| of every
+output and gradient (relative to the largest magnitude for gradients). ``mean_list_end``: the entries of its 4x4
+block's list a pixel went through, on average (the kernel's ``last``): the list entries visited per pixel;
+``visible_pairs_per_view``: the Gaussians with radius > 0 in a view, on average.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import argparse
 import json
 import statistics
 import time
+from pathlib import Path
 
 
 def main(argv=None) -> dict:
@@ -25,43 +32,72 @@ def main(argv=None) -> dict:
 
     from panorecon.evaluation.bench_rasterizer import scene
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
+    from panorecon.splat.ply import load_ply
     from panorecon.splat.rasterize import cpu_backend
+    from panorecon.splat.rasterize.sh import C0
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--gaussians", type=int, default=100_000)
+    ap.add_argument("--run", default=None, help="a panorecon train output folder: its model and label views")
+    ap.add_argument("--views", type=int, default=8, help="label views of --run, spread over its cameras")
+    ap.add_argument("--no-contrib", action="store_true", help="forward without per-Gaussian contributions")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--save", default=None, help="write the outputs here (torch.save)")
     ap.add_argument("--against", default=None, help="compare with outputs saved by another checkout")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
-    size, ext = args.size, cpu_backend.load()
-    K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
-    V = torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None]
-    means, quats, scales, opac, colors = scene(args.gaussians)
-    m2d, con, dep, radii = ext.project_forward(means, quats, scales, V, K, size, size, 0.01, 1e10, 0.3)
+    ext = cpu_backend.load()
+    if args.run:
+        model = load_ply(Path(args.run) / "point_cloud.ply")
+        cams = json.loads((Path(args.run) / "cameras.json").read_text())["pseudo-label"]
+        cams = [cams[round(i * len(cams) / args.views)] for i in range(args.views)]
+        size = cams[0]["width"]
+        with torch.no_grad():
+            quats = model.quats / model.quats.norm(dim=-1, keepdim=True)
+            means, quats, scales = (t.contiguous() for t in (model.means, quats, model.scales()))
+            opac = model.opacities().contiguous()
+            colors = (model.sh0[:, 0] * C0 + 0.5).clamp_min(0).contiguous()
+        views = [
+            (torch.tensor(c["viewmat"], dtype=torch.float32)[None], torch.tensor(c["K"], dtype=torch.float32)[None])
+            for c in cams
+        ]
+    else:
+        size = args.size
+        K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
+        views = [(torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None], K)]
+        means, quats, scales, opac, colors = scene(args.gaussians)
     cols = colors[None].contiguous()
     g = torch.Generator().manual_seed(3)
     weights = [torch.rand(1, size, size, c, generator=g) for c in (3, 1, 1)]
     # since 6652cbc the backward also takes the radii (its gradient buffers hold the visible pairs only); an older
     # checkout's module has 15 arguments
     takes_radii = ext.backward.__doc__.splitlines()[0].count("arg") == 16
-    fwd, bwd = [], []
-    for _ in range(args.repeats):
-        t0 = time.process_time()
-        f = ext.forward(m2d, con, cols, opac, dep, radii, size, size, 16, True)
-        t1 = time.process_time()
-        inputs = (m2d, con, cols, opac, dep, radii) if takes_radii else (m2d, con, cols, opac, dep)
-        b = ext.backward(*inputs, f[3], f[4], f[5], f[6], *weights, size, size, 16)
-        t2 = time.process_time()
-        fwd.append(t1 - t0)
-        bwd.append(t2 - t1)
-    outputs = {"forward": [f[k] for k in (0, 1, 2, 7, 8, 9)], "backward": list(b)}
+    fwd, bwd, list_ends, visible, outputs = [], [], [], [], {"forward": [], "backward": []}
+    for V, K in views:
+        m2d, con, dep, radii = ext.project_forward(means, quats, scales, V, K, size, size, 0.01, 1e10, 0.3)
+        for _ in range(args.repeats):
+            t0 = time.process_time()
+            f = ext.forward(m2d, con, cols, opac, dep, radii, size, size, 16, not args.no_contrib)
+            t1 = time.process_time()
+            inputs = (m2d, con, cols, opac, dep, radii) if takes_radii else (m2d, con, cols, opac, dep)
+            b = ext.backward(*inputs, f[3], f[4], f[5], f[6], *weights, size, size, 16)
+            t2 = time.process_time()
+            fwd.append(t1 - t0)
+            bwd.append(t2 - t1)
+        outputs["forward"] += [f[k] for k in ((0, 1, 2) if args.no_contrib else (0, 1, 2, 7, 8, 9))]
+        list_ends.append(float(f[4].double().mean()))
+        visible.append(int((radii > 0).sum()))
+        outputs["backward"] += list(b)
     out = {
         "size": size,
-        "gaussians": args.gaussians,
+        "gaussians": len(means),
+        "views": len(views),
+        "contributions": not args.no_contrib,
         "forward_cpu_ms": 1000 * statistics.median(fwd),
         "backward_cpu_ms": 1000 * statistics.median(bwd),
+        "mean_list_end": statistics.mean(list_ends),
+        "visible_pairs_per_view": statistics.mean(visible),
     }
     if args.against:
         other = torch.load(args.against)
