@@ -6,10 +6,17 @@ from hypothesis import strategies as st
 
 from panorecon.geometry import PointCloud, intrinsics_from_fov, look_at_viewmat
 from panorecon.io import PanoreconInputError
-from panorecon.splat.losses import gaussian_window, pearson_depth_loss, ssim, ssim_reference, total_loss
+from panorecon.splat.losses import (
+    gaussian_window,
+    pearson_depth_loss,
+    ssim,
+    ssim_reference,
+    ssim_separable,
+    total_loss,
+)
 from panorecon.splat.model import GaussianModel
 from panorecon.splat.ply import load_ply, ply_properties, save_ply
-from panorecon.splat.rasterize import rasterize
+from panorecon.splat.rasterize import cpu_backend, rasterize
 
 
 def grid_cloud(spacing=0.1, n=6):
@@ -104,12 +111,58 @@ class TestLosses:
         a = torch.rand(2, 40, 33, 3, generator=g, dtype=torch.float64)
         b = (a + 0.2 * torch.randn(a.shape, generator=g, dtype=torch.float64)).clamp(0, 1)
         leaves = [a.clone().requires_grad_(True), a.clone().requires_grad_(True)]
-        fast, ref = ssim(leaves[0], b), ssim_reference(leaves[1], b)
+        fast, ref = ssim_separable(leaves[0], b), ssim_reference(leaves[1], b)
         torch.testing.assert_close(fast, ref, rtol=0, atol=1e-13)
         fast.backward()
         ref.backward()
         assert leaves[1].grad.abs().max() > 0
         torch.testing.assert_close(leaves[0].grad, leaves[1].grad, rtol=1e-10, atol=1e-15)
+
+    @pytest.mark.skipif(not cpu_backend.available(), reason="the C++ cpu backend could not be built here")
+    @pytest.mark.parametrize(
+        "case",
+        ["noisy", "constant images", "saturated 0 and 1", "one output pixel (11 x 11)", "batch of 2, 4 channels"],
+    )
+    def test_fused_float32_ssim_matches_the_float64_reference_with_gradients(self, case):
+        """The C++ SSIM (float32 CPU images, constant target) against ssim_reference in float64: the mean and the
+        gradient w.r.t. the render, on images whose variances vanish (C1, C2 carry the ratio) or saturate. Where
+        the image is flat, float32 cancels in E[x^2] - mu^2 and in the gradient's large opposite terms: there the
+        bound is PyTorch's own float32 path's error on the same images (2e-4 of the gradient on constant ones)."""
+        g = torch.Generator().manual_seed(5)
+        shape = {"one output pixel (11 x 11)": (1, 11, 11, 3), "batch of 2, 4 channels": (2, 30, 27, 4)}.get(
+            case, (1, 48, 41, 3)
+        )
+        a = torch.rand(shape, generator=g, dtype=torch.float64)
+        b = (a + 0.2 * torch.randn(shape, generator=g, dtype=torch.float64)).clamp(0, 1)
+        if case == "constant images":
+            a, b = torch.full(shape, 0.3, dtype=torch.float64), torch.full(shape, 0.7, dtype=torch.float64)
+        if case == "saturated 0 and 1":
+            a, b = (a > 0.5).double(), (b > 0.3).double()
+        ref_leaf = a.clone().requires_grad_(True)
+        ref = ssim_reference(ref_leaf, b)
+        ref.backward()
+        scale = ref_leaf.grad.abs().max().clamp_min(1e-12)
+        errors = {}
+        for name, fn in (("fused", ssim), ("pytorch float32", ssim_separable)):
+            leaf = a.float().requires_grad_(True)
+            value = fn(leaf, b.float())
+            value.backward()
+            assert torch.isfinite(leaf.grad).all()
+            errors[name] = (
+                abs(float(value) - float(ref)),
+                float((leaf.grad.double() - ref_leaf.grad).abs().max() / scale),
+            )
+            if name == "fused":
+                assert "Fused" in type(value.grad_fn).__name__
+        assert errors["fused"][0] <= max(2e-6, 4 * errors["pytorch float32"][0]), errors
+        assert errors["fused"][1] <= max(2e-5, 2 * errors["pytorch float32"][1]), errors
+
+    def test_ssim_of_a_target_that_needs_a_gradient_runs_in_pytorch(self):
+        a, b = torch.rand(1, 20, 20, 3, requires_grad=True), torch.rand(1, 20, 20, 3, requires_grad=True)
+        value = ssim(a, b)
+        value.backward()
+        assert b.grad is not None and b.grad.abs().max() > 0
+        torch.testing.assert_close(value, ssim_separable(a, b))
 
     def test_pearson_is_scale_and_shift_invariant(self):
         rng = np.random.default_rng(1)

@@ -26,7 +26,7 @@ from .sh import check_sh, split_sh
 log = logging.getLogger("panorecon.splat")
 _SOURCES = [
     Path(__file__).parent / "csrc" / f
-    for f in ("module.cpp", "project_cpu.cpp", "sh_cpu.cpp", "rasterize_cpu.cpp", "peak_cpu.cpp")
+    for f in ("module.cpp", "project_cpu.cpp", "sh_cpu.cpp", "rasterize_cpu.cpp", "ssim_cpu.cpp", "peak_cpu.cpp")
 ]
 _module = None
 _error: str | None = None

@@ -1,5 +1,6 @@
-// The Python module of the cpu backend: projection (project_cpu.cpp), SH colours (sh_cpu.cpp) and compositing
-// (rasterize_cpu.cpp), and the machine's measured limits for the roofline benchmark (peak_cpu.cpp).
+// The Python module of the cpu backend: projection (project_cpu.cpp), SH colours (sh_cpu.cpp), compositing
+// (rasterize_cpu.cpp), the training loss's SSIM (ssim_cpu.cpp), and the machine's measured limits for the roofline
+// benchmark (peak_cpu.cpp).
 #include <torch/extension.h>
 #include <vector>
 
@@ -23,6 +24,8 @@ torch::Tensor sh_forward(torch::Tensor dc, torch::Tensor rest, torch::Tensor mea
 std::vector<torch::Tensor> sh_backward(torch::Tensor dc, torch::Tensor rest, torch::Tensor means,
                                        torch::Tensor campos, torch::Tensor radii, torch::Tensor g_colors,
                                        int64_t degree);
+std::vector<torch::Tensor> ssim_forward(torch::Tensor x, torch::Tensor y, torch::Tensor g);
+torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, torch::Tensor partials, double scale);
 std::vector<double> peak_fma(int64_t iters);
 std::vector<double> stream_copy(int64_t n, int64_t repeats);
 
@@ -33,6 +36,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_backward", &project_backward, "EWA projection, backward");
   m.def("sh_forward", &sh_forward, "SH colours of the visible Gaussians, forward");
   m.def("sh_backward", &sh_backward, "SH colours of the visible Gaussians, backward");
+  m.def("ssim_forward", &ssim_forward, "fused SSIM of planar images: mean of the map, and its partials");
+  m.def("ssim_backward", &ssim_backward, "fused SSIM, gradient w.r.t. x");
   m.def("peak_fma", &peak_fma, "FMA loop on every thread -> [seconds, flops]");
   m.def("stream_copy", &stream_copy, "STREAM-like copy on every thread -> [seconds, bytes]");
 }
