@@ -47,8 +47,7 @@ class _FusedSsim(torch.autograd.Function):
         from .rasterize import cpu_backend
 
         x, y, taps, partials = ctx.saved_tensors
-        scale = float(g) / partials[0].numel()  # d mean / d map
-        return cpu_backend.load().ssim_backward(x, y, taps, partials, scale), None, None
+        return cpu_backend.load().ssim_backward(x, y, taps, partials, g.float().contiguous()), None, None
 
 
 def ssim(a: torch.Tensor, b: torch.Tensor, size: int = 11, sigma: float = 1.5) -> torch.Tensor:

@@ -25,7 +25,8 @@ std::vector<torch::Tensor> sh_backward(torch::Tensor dc, torch::Tensor rest, tor
                                        torch::Tensor campos, torch::Tensor radii, torch::Tensor g_colors,
                                        int64_t degree);
 std::vector<torch::Tensor> ssim_forward(torch::Tensor x, torch::Tensor y, torch::Tensor g);
-torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, torch::Tensor partials, double scale);
+torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, torch::Tensor partials,
+                            torch::Tensor g_mean);
 std::vector<double> peak_fma(int64_t iters);
 std::vector<double> stream_copy(int64_t n, int64_t repeats);
 

@@ -86,9 +86,11 @@ std::vector<torch::Tensor> ssim_forward(torch::Tensor x, torch::Tensor y, torch:
   return {torch::tensor(total / double(n_out * Wo), x.options()), partials};
 }
 
-// dL/dx [P, H, W] for L = scale x sum of the SSIM map: scale (T(d_mu) + 2 x T(d_xx) + y T(d_xy)), T the transposed
-// ('full') blur, separably: columns first into [3, P, H, Wo], then rows.
-torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, torch::Tensor partials, double scale) {
+// dL/dx [P, H, W] given g_mean = dL/d(mean of the SSIM map), a scalar tensor (read here, not in Python, so that the
+// training loop reads nothing back between steps): s (T(d_mu) + 2 x T(d_xx) + y T(d_xy)) with s = g_mean / the map's
+// size and T the transposed ('full') blur, separably: columns first into [3, P, H, Wo], then rows.
+torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, torch::Tensor partials,
+                            torch::Tensor g_mean) {
   const int64_t P = x.size(0), H = x.size(1), W = x.size(2), K = g.size(0), Ho = H - K + 1, Wo = W - K + 1;
   const float *px = x.data_ptr<float>(), *py = y.data_ptr<float>(), *pg = g.data_ptr<float>();
   const float* pp = partials.data_ptr<float>();
@@ -109,7 +111,7 @@ torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, t
   });
   auto grad = torch::empty_like(x);
   float* pgx = grad.data_ptr<float>();
-  const float s = (float)scale;
+  const float s = g_mean.item<float>() / float(P * Ho * Wo);
   at::parallel_for(0, P * H, 16, [&](int64_t b, int64_t e) {
     std::vector<float> full(3 * W);
     for (int64_t r = b; r < e; ++r) {
