@@ -182,7 +182,11 @@ void backward_impl(const T* means, const T* quats, const T* scales, const T* V, 
       T Rq[9], qn[4], norm, M[9], gM[9] = {0}, gm[3] = {0};
       bool any = false;
       for (int64_t c = 0; c < C; ++c) any = any || rad[c * N + n] > 0;
-      if (!any) continue;  // outputs are zero-initialised
+      if (!any) {  // culled by every camera: no gradient (the outputs are written here, not zero-filled first)
+        for (int k = 0; k < 3; ++k) g_means[n * 3 + k] = g_scales[n * 3 + k] = T(0);
+        for (int k = 0; k < 4; ++k) g_quats[n * 4 + k] = T(0);
+        continue;
+      }
       const T* s = scales + n * 3;
       quat_rotmat(quats + n * 4, Rq, qn, norm);
       for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
@@ -230,7 +234,10 @@ void backward_impl(const T* means, const T* quats, const T* scales, const T* V, 
       T G[9];
       for (int k = 0; k < 3; ++k) g_scales[n * 3 + k] = gM[k] * Rq[k] + gM[3 + k] * Rq[3 + k] + gM[6 + k] * Rq[6 + k];
       for (int i = 0; i < 9; ++i) G[i] = gM[i] * s[i % 3];
-      if (!(norm > T(1e-12))) continue;  // the identity stand-in has no gradient
+      if (!(norm > T(1e-12))) {  // the identity stand-in has no gradient
+        for (int k = 0; k < 4; ++k) g_quats[n * 4 + k] = T(0);
+        continue;
+      }
       const T w = qn[0], x = qn[1], y = qn[2], z = qn[3];
       T gq[4];
       gq[0] = 2 * (-z * G[1] + y * G[2] + z * G[3] - x * G[5] - y * G[6] + x * G[7]);
@@ -268,7 +275,8 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
                                             torch::Tensor g_m2d, torch::Tensor g_con, torch::Tensor g_dep, int64_t W,
                                             int64_t H, double near, double far, double eps2d) {
   const int64_t C = viewmats.size(0), N = means.size(0);
-  auto gm = torch::zeros_like(means), gq = torch::zeros_like(quats), gs = torch::zeros_like(scales);
+  // every row is written by backward_impl: no zero-fill first (~1.8 ms a step at 330k Gaussians, 91 % culled)
+  auto gm = torch::empty_like(means), gq = torch::empty_like(quats), gs = torch::empty_like(scales);
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project_backward", [&] {
     backward_impl<scalar_t>(means.data_ptr<scalar_t>(), quats.data_ptr<scalar_t>(), scales.data_ptr<scalar_t>(),
                             viewmats.data_ptr<scalar_t>(), Ks.data_ptr<scalar_t>(), radii.data_ptr<int32_t>(),
