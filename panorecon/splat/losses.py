@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .rasterize import cpu_backend
+
 
 def gaussian_kernel_1d(size: int = 11, sigma: float = 1.5, dtype=torch.float32) -> torch.Tensor:
     """[size] normalised Gaussian taps."""
@@ -36,16 +38,12 @@ class _FusedSsim(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, x, y, taps):
-        from .rasterize import cpu_backend
-
         value, partials = cpu_backend.load().ssim_forward(x, y, taps)
         ctx.save_for_backward(x, y, taps, partials)
         return value
 
     @staticmethod
     def backward(ctx, g):
-        from .rasterize import cpu_backend
-
         x, y, taps, partials = ctx.saved_tensors
         return cpu_backend.load().ssim_backward(x, y, taps, partials, g.float().contiguous()), None, None
 
@@ -54,8 +52,6 @@ def ssim(a: torch.Tensor, b: torch.Tensor, size: int = 11, sigma: float = 1.5) -
     """Mean SSIM of images [..., H, W, C] in [0, 1] (H, W >= ``size``), differentiable w.r.t. ``a``: fused in C++
     for float32 CPU images when the cpu backend is built and ``b`` needs no gradient (a target), else
     ``ssim_separable``; ``ssim_reference`` is the same quantity with the 2-D window."""
-    from .rasterize import cpu_backend
-
     fused = a.device.type == "cpu" and a.dtype == b.dtype == torch.float32 and not b.requires_grad
     if not (fused and cpu_backend.available()):
         return ssim_separable(a, b, size, sigma)
