@@ -70,9 +70,10 @@ def main(argv=None) -> dict:
     cols = colors[None].contiguous()
     g = torch.Generator().manual_seed(3)
     weights = [torch.rand(1, size, size, c, generator=g) for c in (3, 1, 1)]
-    # since 6652cbc the backward also takes the radii (its gradient buffers hold the visible pairs only); an older
-    # checkout's module has 15 arguments
-    takes_radii = ext.backward.__doc__.splitlines()[0].count("arg") == 16
+    # the backward's arguments by checkout: 15 before 6652cbc; 16 with the radii (gradient buffers of the visible
+    # pairs only); 18 with the forward's block lists (block_start, block_pos: forward outputs 7 and 8)
+    n_args = ext.backward.__doc__.splitlines()[0].count("arg")
+    n_lists = 4 if n_args == 18 else 2
     fwd, bwd, list_ends, visible, outputs = [], [], [], [], {"forward": [], "backward": []}
     for V, K in views:
         m2d, con, dep, radii = ext.project_forward(means, quats, scales, V, K, size, size, 0.01, 1e10, 0.3)
@@ -80,12 +81,12 @@ def main(argv=None) -> dict:
             t0 = time.process_time()
             f = ext.forward(m2d, con, cols, opac, dep, radii, size, size, 16, not args.no_contrib)
             t1 = time.process_time()
-            inputs = (m2d, con, cols, opac, dep, radii) if takes_radii else (m2d, con, cols, opac, dep)
-            b = ext.backward(*inputs, f[3], f[4], f[5], f[6], *weights, size, size, 16)
+            inputs = (m2d, con, cols, opac, dep, radii) if n_args >= 16 else (m2d, con, cols, opac, dep)
+            b = ext.backward(*inputs, f[3], f[4], *f[5 : 5 + n_lists], *weights, size, size, 16)
             t2 = time.process_time()
             fwd.append(t1 - t0)
             bwd.append(t2 - t1)
-        outputs["forward"] += [f[k] for k in ((0, 1, 2) if args.no_contrib else (0, 1, 2, 7, 8, 9))]
+        outputs["forward"] += [f[k] for k in (0, 1, 2)] + ([] if args.no_contrib else f[-3:])
         list_ends.append(float(f[4].double().mean()))
         visible.append(int((radii > 0).sum()))
         outputs["backward"] += list(b)

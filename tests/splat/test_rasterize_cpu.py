@@ -183,3 +183,33 @@ def test_needles_at_every_angle_keep_every_pixel_they_reach(seed):
     for name, a, b in zip(("means2d", "conics", "colors", "opacities", "depths"), out["cpu"][2], out["torch"][2]):
         scale = b.abs().max().clamp_min(1.0)
         torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_equal_depths_composite_in_id_order(seed):
+    """Ties in depth keep the Gaussians' id order (the reference's stable argsort), -0 and +0 tie, and negative
+    depths sort before them: opaque, overlapping splats of distinct colours at five depths, so that any other order
+    changes the image by far more than the tolerance. Values and gradients against the reference."""
+    from panorecon.splat.rasterize.torch_backend import rasterize_tiles
+
+    g = torch.Generator().manual_seed(seed)
+    n, width, height = 60, 33, 21
+    means2d = (torch.rand(1, n, 2, generator=g) * torch.tensor([width, height])).contiguous()
+    conics = torch.tensor([0.02, 0.0, 0.02]).repeat(1, n, 1)  # sigma 7 px: every splat covers much of the image
+    radii = torch.full((1, n), 21, dtype=torch.int32)
+    opac = torch.full((n,), 0.9)
+    colors = torch.rand(1, n, 3, generator=g)
+    levels = torch.tensor([-1.0, -0.0, 0.0, 2.0, 2.0])
+    depths = levels[torch.randint(0, 5, (1, n), generator=g)]
+    out = {}
+    for name, fn in (("torch", rasterize_tiles), ("cpu", cpu_backend.composite)):
+        leaves = [t.clone().requires_grad_(True) for t in (means2d, conics, colors, opac, depths)]
+        img, alpha, depth, _ = fn(*leaves[:5], radii, width, height)
+        ((img * torch.linspace(0.5, 1.5, 3)).sum() + 0.1 * depth.sum()).backward()
+        out[name] = (img.detach(), [t.grad for t in leaves])
+    reversed_ties = rasterize_tiles(means2d.flip(1), conics, colors.flip(1), opac, depths.flip(1), radii, width, height)
+    assert (reversed_ties[0] - out["torch"][0]).abs().max() > 0.1, "the scene should depend on the order of ties"
+    torch.testing.assert_close(out["cpu"][0], out["torch"][0], atol=ATOL_VALUE, rtol=RTOL)
+    for name, a, b in zip(("means2d", "conics", "colors", "opacities", "depths"), out["cpu"][1], out["torch"][1]):
+        scale = b.abs().max().clamp_min(1.0)
+        torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")

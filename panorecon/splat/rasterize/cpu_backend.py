@@ -177,17 +177,18 @@ class _Composite(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib):
         ext = load()
-        image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max = ext.forward(
+        image, alpha, depth, T_final, last, *lists, w_sum, w_max, t_max = ext.forward(
             means2d, conics, colors, opacities, depths, radii, width, height, tile, want_contrib
         )
-        ctx.save_for_backward(means2d, conics, colors, opacities, depths, radii, T_final, last, offsets, ids)
+        # lists: the tiles' depth-sorted ids and the 4x4 blocks' lists, which the backward walks again
+        ctx.save_for_backward(means2d, conics, colors, opacities, depths, radii, T_final, last, *lists)
         ctx.size = (width, height, tile)
         ctx.mark_non_differentiable(w_sum, w_max, t_max)
         return image, alpha, depth, w_sum, w_max, t_max
 
     @staticmethod
     def backward(ctx, g_image, g_alpha, g_depth, *_contrib_grads):
-        means2d, conics, colors, opacities, depths, radii, T_final, last, offsets, ids = ctx.saved_tensors
+        means2d, conics, colors, opacities, depths, radii, T_final, last, *lists = ctx.saved_tensors
         width, height, tile = ctx.size
         g = [
             t.contiguous() if t is not None else torch.zeros_like(ref)
@@ -206,8 +207,7 @@ class _Composite(torch.autograd.Function):
             radii,
             T_final,
             last,
-            offsets,
-            ids,
+            *lists,
             g[0],
             g[1],
             g[2],

@@ -10,7 +10,7 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
 std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
                                     torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii,
                                     torch::Tensor T_final, torch::Tensor last, torch::Tensor offsets, torch::Tensor ids,
-                                    torch::Tensor g_image,
+                                    torch::Tensor block_start, torch::Tensor block_pos, torch::Tensor g_image,
                                     torch::Tensor g_alpha, torch::Tensor g_depth, int64_t W, int64_t H, int64_t tile);
 std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
                                            torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,

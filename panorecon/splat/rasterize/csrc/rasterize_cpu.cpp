@@ -39,10 +39,21 @@ inline void for_each_tile(float mx, float my, int32_t r, int64_t W, int64_t H, i
     }
 }
 
+// A uint32 that orders as the float does (IEEE 754 bits, negatives flipped), -0 and +0 alike (a NaN depth, which the
+// projection culls, has no place in the order). Sorting (key << 32 | id) sorts by depth with ties in id order: one
+// std::sort of integers; std::stable_sort on (depth, id) pairs took 7 % of the compositing's samples where this takes
+// 5 % (perf, the target command's trained model, two threads).
+inline uint32_t depth_key(float z) {
+  uint32_t u;
+  z += 0.f;  // -0 -> +0
+  std::memcpy(&u, &z, sizeof u);
+  return (u & 0x80000000u) ? ~u : u | 0x80000000u;
+}
+
 // Counting sort of (camera, tile) hits in parallel: the Gaussians are cut into fixed chunks, each chunk counts
 // its hits per tile, a prefix sum over (tile, chunk) gives every chunk its write position, and a second pass
 // writes the ids. Within a tile the ids come out ascending, whatever the thread count; then each tile is
-// stable-sorted by depth (ties keep the id order, as in the reference's stable argsort).
+// sorted by depth, ties in id order (the reference's stable argsort), by depth_key.
 Bins bin(const float* m2d, const float* depth, const int32_t* radii, int64_t C, int64_t N, int64_t W, int64_t H,
          int64_t tile) {
   const int64_t tiles = ((W + tile - 1) / tile) * ((H + tile - 1) / tile), CT = C * tiles, CN = C * N;
@@ -80,15 +91,15 @@ Bins bin(const float* m2d, const float* depth, const int32_t* radii, int64_t C, 
   out.ids.resize(run);
   sweep(true, out.ids.data());
   at::parallel_for(0, CT, 1, [&](int64_t b, int64_t e) {
-    std::vector<std::pair<float, int32_t>> keyed;
+    std::vector<uint64_t> keyed;
     for (int64_t t = b; t < e; ++t) {
       const float* dz = depth + (t / tiles) * N;
       int32_t* first = out.ids.data() + out.offsets[t];
       const int64_t n = out.offsets[t + 1] - out.offsets[t];
       keyed.resize(n);
-      for (int64_t k = 0; k < n; ++k) keyed[k] = {dz[first[k]], first[k]};
-      std::stable_sort(keyed.begin(), keyed.end(), [](const auto& a, const auto& b2) { return a.first < b2.first; });
-      for (int64_t k = 0; k < n; ++k) first[k] = keyed[k].second;
+      for (int64_t k = 0; k < n; ++k) keyed[k] = (uint64_t)depth_key(dz[first[k]]) << 32 | (uint32_t)first[k];
+      std::sort(keyed.begin(), keyed.end());
+      for (int64_t k = 0; k < n; ++k) first[k] = (int32_t)(uint32_t)keyed[k];
     }
   });
   return out;
@@ -131,6 +142,7 @@ std::vector<int32_t> visible_slots(const int32_t* radii, int64_t CN, int32_t& V)
 }
 
 constexpr int64_t BLOCK = 4;  // pixels per side of the sub-tile blocks that pre-filter a tile's list
+inline int64_t blocks_per_tile(int64_t tile) { return ((tile + BLOCK - 1) / BLOCK) * ((tile + BLOCK - 1) / BLOCK); }
 
 // The kernel's read-only inputs, [C, N, ...] contiguous float32.
 struct Inputs {
@@ -143,12 +155,18 @@ struct Inputs {
 struct TileGaussians {
   std::vector<int32_t> id;
   std::vector<float> mx, my, disc, sigma_cut, qa, qb, qc, op, r, g, b, z;
-  void gather(const int32_t* ids, int64_t n, int64_t c, const Inputs& in) {
-    for (auto* v : {&mx, &my, &disc, &sigma_cut, &qa, &qb, &qc, &op, &r, &g, &b, &z}) v->resize(n);
+  void gather(const int32_t* ids, int64_t n, int64_t c, const Inputs& in) {  // cutoffs too unless in.disc is null
+    for (auto* v : {&mx, &my, &qa, &qb, &qc, &op, &r, &g, &b, &z}) v->resize(n);
     id.assign(ids, ids + n);
+    if (in.disc) {
+      disc.resize(n); sigma_cut.resize(n);
+      for (int64_t k = 0; k < n; ++k) {
+        disc[k] = in.disc[c * in.N + ids[k]]; sigma_cut[k] = in.sigma_cut[c * in.N + ids[k]];
+      }
+    }
     for (int64_t k = 0; k < n; ++k) {
       const int64_t cn = c * in.N + ids[k];
-      mx[k] = in.m2d[cn * 2]; my[k] = in.m2d[cn * 2 + 1]; disc[k] = in.disc[cn]; sigma_cut[k] = in.sigma_cut[cn];
+      mx[k] = in.m2d[cn * 2]; my[k] = in.m2d[cn * 2 + 1];
       qa[k] = in.con[cn * 3]; qb[k] = in.con[cn * 3 + 1]; qc[k] = in.con[cn * 3 + 2];
       op[k] = in.op[ids[k]];
       r[k] = in.col[cn * 3]; g[k] = in.col[cn * 3 + 1]; b[k] = in.col[cn * 3 + 2]; z[k] = in.dz[cn];
@@ -222,7 +240,8 @@ PR_INLINE v8f hsum8(const v8f* a) {
 // the target command's trained model goes through 19 % fewer list entries (eval/compositor_builds.py --run,
 // mean_list_end 125.4 -> 101.9). Built in one pass over the tile's Gaussians, each tested against all the tile's blocks at once, 8 blocks to
 // a vector, without a branch: the scalar scan per block that it replaces took about a quarter of the compositing's
-// time at 256^2 / 100k (perf). Forward and backward build the same lists.
+// time at 256^2 / 100k (perf). The forward builds them and hands them to the backward (block_start, block_pos),
+// which walked the same lists after building them again.
 struct BlockLists {
   int64_t n_blocks = 0, cap = 0;
   std::vector<float> x0, x1, y0, y1;  // pixel-centre rectangle of each block, padded to 8 (+inf: never read)
@@ -426,7 +445,9 @@ void composite_block_backward(const TileGaussians& G, const int32_t* list, int64
 }  // namespace
 
 // -> image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1], T_final [C,H,W], last [C,H,W] (int32: how many
-// entries of the pixel's 4x4-block list were composited), offsets, ids, and with want_contrib the per-Gaussian
+// entries of the pixel's 4x4-block list were composited), offsets, ids (the tiles' depth-sorted Gaussians),
+// block_start [C * tiles * blocks_per_tile + 1] and block_pos (int32: each block's list, as positions in its tile's
+// ids; a tile's blocks in for_each_block's order, then empty ones), and with want_contrib the per-Gaussian
 // weight_sum, weight_max (sum / max over pixels of alpha*T) and trans_max (max T in front of it where it was
 // composited) [C,N]; else three empty tensors. Contributions are summed per tile, then into one buffer of 3 floats
 // per visible pair and thread, then across threads.
@@ -449,6 +470,10 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   int32_t V = 0;
   const std::vector<int32_t> slot = want_contrib ? visible_slots(radii.data_ptr<int32_t>(), C * N, V) : std::vector<int32_t>();
   std::vector<float> contrib_buf(n_threads * V * 3, 0.f);  // per thread and visible pair: weight sum, max, max T
+  const int64_t bpt = blocks_per_tile(tile);
+  auto block_start = torch::empty({C * tiles * bpt + 1}, torch::TensorOptions().dtype(torch::kInt64));
+  int64_t* bs = block_start.data_ptr<int64_t>();  // block counts first, then turned into starts below
+  std::vector<std::vector<int32_t>> tile_lists(C * tiles);  // a tile's block lists, one after another
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
     float* acc = want_contrib ? contrib_buf.data() + at::get_thread_num() * V * 3 : nullptr;
     TileGaussians G;
@@ -459,6 +484,11 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
       const int64_t c = t / tiles, n_g = bins.offsets[t + 1] - bins.offsets[t];
       G.gather(bins.ids.data() + bins.offsets[t], n_g, c, in);
       build_block_lists(L, G, t % tiles, W, H, tile);
+      std::vector<int32_t>& kept = tile_lists[t];
+      for (int64_t k = 0; k < bpt; ++k) {
+        bs[t * bpt + k] = k < L.n_blocks ? L.count[k] : 0;
+        if (k < L.n_blocks) kept.insert(kept.end(), L.list(k), L.list(k) + L.count[k]);
+      }
       if (want_contrib) tile_contrib.assign(3 * n_g, 0.f);
       int64_t blk = 0;
       for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
@@ -480,6 +510,18 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
       }
     }
   });
+  int64_t run = 0;  // block counts -> starts in block_pos
+  for (int64_t k = 0; k < C * tiles * bpt; ++k) {
+    const int64_t count = bs[k];
+    bs[k] = run;
+    run += count;
+  }
+  bs[C * tiles * bpt] = run;
+  auto block_pos = torch::empty({run}, torch::TensorOptions().dtype(torch::kInt32));
+  int32_t* bp = block_pos.data_ptr<int32_t>();
+  at::parallel_for(0, C * tiles, 16, [&](int64_t b, int64_t e) {
+    for (int64_t t = b; t < e; ++t) std::copy(tile_lists[t].begin(), tile_lists[t].end(), bp + bs[t * bpt]);
+  });
   auto offsets = torch::from_blob((void*)bins.offsets.data(), {(int64_t)bins.offsets.size()}, torch::kInt64).clone();
   auto ids = torch::from_blob((void*)bins.ids.data(), {(int64_t)bins.ids.size()}, torch::kInt32).clone();
   auto w_sum = torch::zeros({want_contrib ? C : 0, N}, f), w_max = torch::zeros({want_contrib ? C : 0, N}, f),
@@ -494,7 +536,7 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
       }
     }
   });
-  return {image, alpha, depth, T_final, last, offsets, ids, w_sum, w_max, t_max};
+  return {image, alpha, depth, T_final, last, offsets, ids, block_start, block_pos, w_sum, w_max, t_max};
 }
 
 // Gradients w.r.t. means2d [C,N,2], conics [C,N,3], colors [C,N,3], opacities [N], depths [C,N]; 0 for culled pairs.
@@ -504,8 +546,8 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
 std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
                                     torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii,
                                     torch::Tensor T_final, torch::Tensor last, torch::Tensor offsets, torch::Tensor ids,
-                                    torch::Tensor g_image, torch::Tensor g_alpha, torch::Tensor g_depth, int64_t W,
-                                    int64_t H, int64_t tile) {
+                                    torch::Tensor block_start, torch::Tensor block_pos, torch::Tensor g_image,
+                                    torch::Tensor g_alpha, torch::Tensor g_depth, int64_t W, int64_t H, int64_t tile) {
   const int64_t C = means2d.size(0), N = means2d.size(1), CN = C * N;
   const float* Tf = T_final.data_ptr<float>();
   const int32_t* ls = last.data_ptr<int32_t>();
@@ -513,19 +555,22 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
   const int32_t* gid = ids.data_ptr<int32_t>();
   const int32_t* rad = radii.data_ptr<int32_t>();
   const float *gi = g_image.data_ptr<float>(), *ga = g_alpha.data_ptr<float>(), *gd = g_depth.data_ptr<float>();
-  const Cutoffs cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), rad, C, N);
+  const int64_t* bs = block_start.data_ptr<int64_t>();
+  const int32_t* bp = block_pos.data_ptr<int32_t>();
   const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
-                  opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.disc.data(), cut.sigma.data(), N};
+                  opacities.data_ptr<float>(), depths.data_ptr<float>(), nullptr, nullptr, N};
   int32_t V = 0;
   const std::vector<int32_t> slot = visible_slots(rad, CN, V);
   const int64_t threads = at::get_num_threads();
   constexpr int64_t G = 10;  // per visible pair: means2d x y, conic a b c, rgb, z, opacity
+  const int64_t bpt = blocks_per_tile(tile);
+  TORCH_CHECK(block_start.numel() == C * ((W + tile - 1) / tile) * ((H + tile - 1) / tile) * bpt + 1,
+              "compositing backward: block_start does not match the forward's tiles");
   std::vector<float> buf(threads * V * G, 0.f);
   const int64_t tiles = ((W + tile - 1) / tile) * ((H + tile - 1) / tile);
   at::parallel_for(0, C * tiles, 1, [&](int64_t b, int64_t e) {
     float* acc = buf.data() + at::get_thread_num() * V * G;
     TileGaussians Gs;
-    BlockLists L;
     BlockGrad px;
     std::vector<float> grad;  // this tile's gradients, G per tile Gaussian
     for (int64_t t = b; t < e; ++t) {
@@ -533,10 +578,9 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
       const int64_t n_g = off[t + 1] - off[t];
       Gs.gather(gid + off[t], n_g, c, in);
       grad.assign(n_g * G, 0.f);
-      build_block_lists(L, Gs, t % tiles, W, H, tile);
       int64_t blk = 0;
       for_each_block(t % tiles, W, H, tile, [&](int64_t i0, int64_t i1, int64_t j0, int64_t j1) {
-        const int32_t* list = L.list(blk++);
+        const int32_t* list = bp + bs[t * bpt + blk++];
         for (int64_t q = 0; q < LANES; ++q) {
           const int64_t i = i0 + q / BLOCK, j = j0 + q % BLOCK, p = (c * H + i) * W + j, v = q / 8, u = q % 8;
           const bool inside = i < i1 && j < j1;
