@@ -7,6 +7,7 @@
 // Backward: a culled (camera, Gaussian) pair gets no gradient, since the compositor never reads its outputs.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
+#include "parallel_cpu.h"
 #include <algorithm>
 #include <cmath>
 #include <vector>
@@ -128,7 +129,7 @@ void forward_impl(const T* means, const T* quats, const T* scales, const T* V, c
   std::vector<Camera<T>> cams;
   for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
   constexpr int64_t CHUNK = 256;
-  at::parallel_for(0, N, 2048, [&](int64_t b0, int64_t e0) {
+  parallel_dealt(N, 2048, [&](int64_t b0, int64_t e0) {
     std::vector<uint8_t> maybe(C * CHUNK);  // camera c's mask at c * CHUNK
     for (int64_t n0 = b0; n0 < e0; n0 += CHUNK) {
       const int64_t len = std::min(CHUNK, e0 - n0);
@@ -177,7 +178,7 @@ void backward_impl(const T* means, const T* quats, const T* scales, const T* V, 
                    T far, T eps2d, T* g_means, T* g_quats, T* g_scales) {
   std::vector<Camera<T>> cams;
   for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
-  at::parallel_for(0, N, 2048, [&](int64_t b0, int64_t e0) {
+  parallel_dealt(N, 2048, [&](int64_t b0, int64_t e0) {
     for (int64_t n = b0; n < e0; ++n) {
       T Rq[9], qn[4], norm, M[9], gM[9] = {0}, gm[3] = {0};
       bool any = false;
