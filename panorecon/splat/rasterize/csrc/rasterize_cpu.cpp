@@ -1,9 +1,11 @@
 // Tiled Gaussian compositing on the CPU: forward and hand-written backward, parallel over tiles.
 // Same rules as the PyTorch reference (torch_backend.py): pixel centres at +0.5; alpha = min(0.99, o exp(-sigma));
 // alpha < 1/255 or sigma < 0 skipped; stop before the Gaussian that would take T to <= 1e-4.
-// Layout of the work: Gaussians are binned to 16x16 tiles (counting sort, then depth sort per tile); a tile's
-// Gaussians are gathered into contiguous arrays; each 4x4 block of pixels gets the sub-list whose alpha cutoff
-// disc reaches it, and its 16 pixels are composited in lockstep as two 8-float vectors.
+// Layout of the work: the visible pairs are sorted by depth once (radix sort), then binned to 16x16 tiles in that
+// order (counting sort), so each tile's list is front to back; a tile's Gaussians are gathered into contiguous
+// arrays; each 4x4 block of pixels gets the sub-list of those that may reach alpha >= 1/255 at one of its pixel
+// centres (built by the forward, kept for the backward), and its 16 pixels are composited in lockstep as two
+// 8-float vectors.
 // Float32 throughout. Gradients are summed per tile, then into one buffer per thread, then across threads.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
