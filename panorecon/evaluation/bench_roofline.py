@@ -2,7 +2,7 @@
 achieved rate, and its distance from the machine's limits measured in the same run.
 
     python -m panorecon.evaluation.bench_roofline [--size 256] [--gaussians 200000] [--repeats 5]
-        [--threads N] [--clock wall|cpu] [--out r.json]
+        [--sh-degree 0|3] [--threads N] [--clock wall|cpu] [--out r.json]
 
 ``--clock cpu`` times every stage and both peaks by this process's CPU seconds divided by the thread count: with
 ``--threads 1`` on a machine shared with other work, that is the work's own time, where wall seconds count the
@@ -15,10 +15,12 @@ first touch, whose page faults cost several times the copies). A stage's floor i
 peak_gbs); ``distance`` = its time / that floor (1 = at the machine's limit), ``bound`` says which roof is nearer.
 
 The step: the bench rasterizer's scene (evaluation/bench_rasterizer.scene) with half the Gaussians mirrored behind
-the one 60° camera (as a panorama's label view sees a part of the sphere), SH degree 3, the trainer's loss
-(L1 + SSIM + Pearson depth against a noisy copy of the rendered depth) and fused Adam over a ``GaussianModel``'s
-parameters, and one densification (``DefaultStrategy`` refine: 5 % of the Gaussians cloned) amortised over its
-100-step period. Each stage's backward runs alone (``torch.autograd.grad``).
+the one 60° camera (as a panorama's label view sees a part of the sphere), the colours at the trainer's active SH
+degree (``--sh-degree``; default the trainer's defaults' active degree, 0: ``TrainConfig.sh_increase_every`` is 0),
+the trainer's loss (L1 + SSIM + Pearson depth against a noisy copy of the rendered depth) and fused Adam over the
+``GaussianModel``'s parameters that get a gradient at that degree (at 0, not shN: the trainer's shN.grad stays None),
+and one densification (``DefaultStrategy`` refine: 5 % of the Gaussians cloned) amortised over its 100-step period.
+Each stage's backward runs alone (``torch.autograd.grad``).
 
 Work per unit, counted from the sources (floating-point operations on lanes, an FMA-able multiply-add as 2;
 compares and selects as 1), so that the counts are stated rather than measured by hardware counters:
@@ -45,14 +47,16 @@ from .environment import emit, environment
 FLOPS = {
     "composite": (67, 122),  # per lane evaluation: sigma 9, exp 27, alpha/T/weight 13, rgb+z 8, masks 10 | backward
     "projection": (190, 420),  # per (camera, Gaussian) pair: rotation, 3-D covariance, EWA Jacobian, 2x2 inverse
-    "sh": (130, 260),  # per visible pair at degree 3: 16 basis values, 16 x 3 multiply-adds, clamp
+    "sh": {3: (130, 260), 0: (9, 9)},  # per visible pair | degree 3: 16 basis values, 16 x 3 multiply-adds, clamp;
+    # degree 0: 3 multiply-adds and a clamp | 3 tests and 3 multiply-adds
     "loss": (250, 520),  # per pixel-channel: 5 statistics x 2 separable passes x 11 taps, SSIM map, L1, Pearson
     "adam": 12,  # per parameter: two moments, bias correction, sqrt, update
 }
 # bytes per unit moved to or from memory
 BYTES = {
     "projection": (68, 112),  # means, quats, scales in; means2d, conics, depth, radius out | + gradients
-    "sh": (212, 400),  # 16 x 3 coefficients + mean in, colour out | coefficient gradients out
+    "sh": {3: (212, 400), 0: (24, 36)},  # 16 x 3 coefficients + mean in, colour out | coefficient gradients out;
+    # degree 0: 3 coefficients in, colour out | colour gradient in, 3 coefficient gradients out
     "loss": (120, 240),  # the 5 statistic planes written and read by each pass
     "adam": 28,  # param, grad, m, v read; param, m, v written
     "densify": 59 * 3 * 4 * 2,  # 59 parameters + 2 Adam moments per Gaussian, read and written once
@@ -130,8 +134,19 @@ def lane_work(last: torch.Tensor, block: int = 4) -> tuple[int, int]:
     return int(per_block.sum()) * block * block, int(last.sum())
 
 
-def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
+def trainer_sh_degree() -> int:
+    """The SH degree the trainer's default configuration renders at: 0 unless its bands are switched on over time."""
+    from panorecon.splat.trainer import TrainConfig
+
+    cfg = TrainConfig()
+    return cfg.sh_degree if cfg.sh_increase_every else 0
+
+
+def step_stages(size: int, n: int, repeats: int, clock: str = "wall", sh_degree: int | None = None) -> dict:
     """Median seconds of each stage of one training step, and the counted work (module docstring)."""
+    deg = trainer_sh_degree() if sh_degree is None else sh_degree
+    if deg not in FLOPS["sh"]:
+        raise ValueError(f"sh_degree={deg}: the roofline counts the work of degrees {sorted(FLOPS['sh'])}")
     from panorecon.splat.losses import total_loss
     from panorecon.splat.rasterize import cpu_backend
     from panorecon.splat.strategy import DefaultStrategy, edit_parameters
@@ -151,12 +166,14 @@ def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
 
     teacher = None
     g_adam = torch.Generator().manual_seed(3)
-    adam_grads = [torch.randn(p.shape, generator=g_adam) * 1e-3 for p in model.parameters()]
+    # the parameters with a gradient at this degree (at 0 shN gets none, and fused Adam skips it, as in the trainer)
+    stepped = [p for name, p in model.named_parameters() if deg > 0 or name != "shN"]
+    adam_grads = [torch.randn(p.shape, generator=g_adam) * 1e-3 for p in stepped]
     for _ in range(repeats + 1):  # the first is a warm-up
         t = clock()
         m2d, con, dep, radii = cpu_backend.project(model.means, model.quats, model.scales(), V, K, size, size)
         t = tick("projection_forward", t)
-        cols = cpu_backend.sh_colors(3, (model.sh0, model.shN), model.means, campos, radii)
+        cols = cpu_backend.sh_colors(deg, (model.sh0, model.shN), model.means, campos, radii)
         t = tick("sh_forward", t)
         leaves = [x.detach().requires_grad_(True) for x in (m2d, con, cols, dep)]
         op = model.opacities()
@@ -175,13 +192,13 @@ def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
         t = tick("loss_backward", t)
         grads = torch.autograd.grad([img, alpha, depth], [*leaves, op_leaf], [g_img, g_alpha, g_depth])
         t = tick("composite_backward", t)
-        torch.autograd.grad(cols, [model.shN, model.sh0, model.means], grads[2])
+        torch.autograd.grad(cols, [model.shN, model.sh0, model.means] if deg > 0 else [model.sh0], grads[2])
         t = tick("sh_backward", t)
         torch.autograd.grad(
             [m2d, con, dep], [model.means, model.quats, model.log_scales], [grads[0], grads[1], grads[3]]
         )
         t = tick("projection_backward", t)
-        for p, grad in zip(model.parameters(), adam_grads):  # outside the clock: randn costs ~10x the step
+        for p, grad in zip(stepped, adam_grads):  # outside the clock: randn costs ~10x the step
             p.grad = grad
         t = clock()
         opt.step()
@@ -208,12 +225,12 @@ def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
     lanes, blends = lane_work(fwd[4])
     pairs, visible = radii.numel(), int((radii > 0).sum())
     pixel_channels = size * size * 3
-    params = sum(p.numel() for p in model.parameters())
+    params = sum(p.numel() for p in stepped)
     work = {
         "projection_forward": (pairs * FLOPS["projection"][0], pairs * BYTES["projection"][0]),
         "projection_backward": (pairs * FLOPS["projection"][1], pairs * BYTES["projection"][1]),
-        "sh_forward": (visible * FLOPS["sh"][0], visible * BYTES["sh"][0]),
-        "sh_backward": (visible * FLOPS["sh"][1], visible * BYTES["sh"][1]),
+        "sh_forward": (visible * FLOPS["sh"][deg][0], visible * BYTES["sh"][deg][0]),
+        "sh_backward": (visible * FLOPS["sh"][deg][1], visible * BYTES["sh"][deg][1]),
         "composite_forward": (lanes * FLOPS["composite"][0], size * size * 36),
         "composite_backward": (lanes * FLOPS["composite"][1], size * size * 64),
         "loss_forward": (pixel_channels * FLOPS["loss"][0], pixel_channels * BYTES["loss"][0]),
@@ -225,6 +242,7 @@ def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
         "size": size,
         "gaussians": n,
         "visible_pairs": visible,
+        "sh_degree": deg,
         "lane_evaluations": lanes,
         "blends": blends,
         "simd_efficiency": blends / max(lanes, 1),
@@ -234,10 +252,12 @@ def step_stages(size: int, n: int, repeats: int, clock: str = "wall") -> dict:
     }
 
 
-def roofline(size: int = 256, n: int = 200_000, repeats: int = 5, clock: str = "wall") -> dict:
+def roofline(
+    size: int = 256, n: int = 200_000, repeats: int = 5, clock: str = "wall", sh_degree: int | None = None
+) -> dict:
     """Peaks, stages, and each stage's achieved rate and distance from its floor (module docstring)."""
     peaks = machine_peaks(clock=clock)
-    st = step_stages(size, n, repeats, clock)
+    st = step_stages(size, n, repeats, clock, sh_degree)
     rows = []
     for k, s in st["seconds"].items():
         f, b = st["work"][k]["flops"], st["work"][k]["bytes"]
@@ -272,11 +292,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's own)")
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall")
+    ap.add_argument(
+        "--sh-degree", type=int, choices=sorted(FLOPS["sh"]), default=None, help="default: the trainer's (module doc)"
+    )
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    r = roofline(args.size, args.gaussians, args.repeats, args.clock)
+    r = roofline(args.size, args.gaussians, args.repeats, args.clock, args.sh_degree)
     return emit(
         {"benchmark": "cpu training step roofline", **environment(), **r, "peak_rss_mb": peak_rss_mb()}, args.out
     )

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from panorecon.evaluation.bench import compare
-from panorecon.evaluation.bench_roofline import lane_work, roofline
+from panorecon.evaluation.bench_roofline import lane_work, roofline, step_stages, trainer_sh_degree
 from panorecon.splat.rasterize import cpu_backend
 
 
@@ -22,8 +22,10 @@ def test_lane_work_counts_the_longest_lane_of_each_block():
 
 
 @pytest.mark.skipif(not cpu_backend.available(), reason="the C++ rasterizer could not be built here")
-def test_tiny_roofline_reports_every_stage_with_finite_rates():
-    r = roofline(64, 2_000, 1)
+@pytest.mark.parametrize("sh_degree", [None, 3])
+def test_tiny_roofline_reports_every_stage_with_finite_rates(sh_degree):
+    r = roofline(64, 2_000, 1, sh_degree=sh_degree)
+    assert r["sh_degree"] == (trainer_sh_degree() if sh_degree is None else sh_degree)
     assert r["peak_gflops"] > 0 and r["peak_gbs"] > 0
     stages = {s["stage"]: s for s in r["stages"]}
     assert set(stages) == {
@@ -42,6 +44,18 @@ def test_tiny_roofline_reports_every_stage_with_finite_rates():
         assert s["ms"] > 0 and math.isfinite(s["distance"]) and s["distance"] > 0, s
     assert 0 < r["blends"] <= r["lane_evaluations"] and 0 < r["simd_efficiency"] <= 1
     assert r["step_ms"] == pytest.approx(sum(s["ms"] for s in stages.values()))
+
+
+@pytest.mark.skipif(not cpu_backend.available(), reason="the C++ rasterizer could not be built here")
+def test_roofline_steps_the_trainers_default_degree_and_its_parameters():
+    """The default step is the trainer's: SH degree 0 (its bands are not switched on), and Adam over the parameters
+    that get a gradient there (not shN); degree 3 steps all 59 floats a Gaussian."""
+    assert trainer_sh_degree() == 0
+    n = 2_000
+    adam_floats = {d: step_stages(64, n, 1, sh_degree=d)["work"]["adam"]["flops"] / 12 for d in (0, 3)}
+    assert adam_floats == {0: n * 14, 3: n * 59}
+    with pytest.raises(ValueError, match="sh_degree=2"):
+        step_stages(64, n, 1, sh_degree=2)
 
 
 def test_bench_warns_when_the_compositing_moves_away_from_the_peak():

@@ -150,9 +150,12 @@ class _ShColors(torch.autograd.Function):
     def backward(ctx, g_colors):
         dc, rest, means, campos, radii = ctx.saved_tensors
         g_dc, g_rest, g_means = load().sh_backward(dc, rest, means, campos, radii, g_colors.contiguous(), ctx.degree)
-        # degree 0 reads no higher band: None, not a tensor of zeros (the trainer's first 1000 steps at 200k
-        # Gaussians would allocate, fault in and zero 36 MB a step for it, and Adam would step shN on zeros)
-        return g_dc, g_rest if ctx.degree > 0 else None, g_means, None, None, None
+        # degree 0 reads no higher band and not the view direction: None, not tensors of zeros, for shN and means
+        # (the trainer's steps at 200k Gaussians would allocate, fault in and zero 36 MB a step for shN, and Adam
+        # would step shN on zeros; the means' zeros would be added to the projection's gradient)
+        if ctx.degree == 0:
+            return g_dc, None, None, None, None, None
+        return g_dc, g_rest, g_means, None, None, None
 
 
 def sh_colors(degree: int, coeffs, means, campos, radii):
