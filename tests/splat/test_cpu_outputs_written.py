@@ -1,6 +1,7 @@
-"""The C++ kernels allocate their outputs uninitialised and write every entry themselves (no zero-fill pass): each
-output must come out the same whatever the memory it was given held before. The heap is poisoned with NaN, then
-with zeros, in blocks of the outputs' sizes (the allocator hands freed blocks back), and the two calls compared."""
+"""Every entry of the C++ kernels' outputs is written, whatever the memory held before: the projection and the SH
+backward allocate theirs uninitialised (no zero-fill pass), and the compositor's must stay so if it ever does. The
+heap is poisoned with NaN, then with zeros, in blocks of the outputs' sizes (the allocator hands freed blocks back),
+and the two calls compared; dropping any one write from the kernels fails here."""
 
 import pytest
 import torch
