@@ -5,7 +5,8 @@ Gaussians (csrc/sh_cpu.cpp, parallel over Gaussians) and tiled compositing
 (or ahead of time by ``python -m panorecon.splat.rasterize.build``) into
 ``$PANORECON_CACHE/torch_extensions/<checkout>``
 (default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the hot
-compositing functions are built twice (x86-64-v3, i.e. AVX2 with FMA, and baseline x86-64) and the loader picks by
+compositing functions are built three times (x86-64-v4 with AVX-512, x86-64-v3 with AVX2 and FMA, and baseline x86-64)
+and the loader picks by
 CPU. csrc/peak_cpu.cpp holds the FMA loop and copy that measure the machine's limits for the roofline benchmark.
 Compositing is float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
 """

@@ -68,14 +68,18 @@ std::vector<int32_t> visible_slots(const int32_t* radii, int64_t CN, int32_t& V)
   const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(64, CN / 16384)), len = (CN + chunks - 1) / chunks;
   std::vector<int32_t> start(chunks + 1, 0);
   at::parallel_for(0, chunks, 1, [&](int64_t b, int64_t e) {
-    for (int64_t k = b; k < e; ++k)
-      for (int64_t cn = k * len; cn < std::min(CN, (k + 1) * len); ++cn) start[k + 1] += radii[cn] > 0;
+    for (int64_t k = b; k < e; ++k) {
+      int32_t count = 0;  // a local: start's int32 stores may alias radii, and kept the loop scalar
+      for (int64_t cn = k * len; cn < std::min(CN, (k + 1) * len); ++cn) count += radii[cn] > 0;
+      start[k + 1] = count;
+    }
   });
   for (int64_t k = 0; k < chunks; ++k) start[k + 1] += start[k];
   at::parallel_for(0, chunks, 1, [&](int64_t b, int64_t e) {
     for (int64_t k = b; k < e; ++k) {
       int32_t v = start[k];
-      for (int64_t cn = k * len; cn < std::min(CN, (k + 1) * len); ++cn) slot[cn] = radii[cn] > 0 ? v++ : -1;
+      int32_t* __restrict out = slot.data();
+      for (int64_t cn = k * len, end = std::min(CN, (k + 1) * len); cn < end; ++cn) out[cn] = radii[cn] > 0 ? v++ : -1;
     }
   });
   V = start[chunks];
@@ -93,11 +97,14 @@ struct VisiblePair {
 
 // The visible pairs, camera by camera, each camera's sorted by depth with ties in id order (the reference's stable
 // argsort): a stable least-significant-digit radix sort of the pairs in index order by depth_key, 8 bits a pass, a
-// pass skipped where every key shares its byte (depths of one scene share their top bits).
+// pass skipped where every key shares its byte (depths of one scene share their top bits). Each pass runs in
+// parallel over fixed chunks of the camera's pairs: every chunk counts its digits, a prefix sum over (digit, chunk)
+// gives each chunk its write positions, and the chunks scatter in their order, so the result is the serial sort's
+// whatever the thread count (the serial passes left the other thread waiting: ~3 % of the compositing, perf).
 std::vector<VisiblePair> visible_by_depth(const float* m2d, const float* depth, const int32_t* radii, int64_t C,
                                           int64_t N, const std::vector<int32_t>& slot, int32_t V) {
-  std::vector<VisiblePair> pairs(V), tmp;
-  std::vector<uint32_t> key(V), key_tmp;
+  std::vector<VisiblePair> pairs(V), tmp(V);
+  std::vector<uint32_t> key(V), key_tmp(V);
   at::parallel_for(0, C * N, 16384, [&](int64_t b, int64_t e) {
     for (int64_t cn = b; cn < e; ++cn)
       if (slot[cn] >= 0) {
@@ -105,25 +112,51 @@ std::vector<VisiblePair> visible_by_depth(const float* m2d, const float* depth, 
         key[slot[cn]] = depth_key(depth[cn]);
       }
   });
-  tmp.resize(pairs.size());
-  key_tmp.resize(pairs.size());
-  size_t first = 0;
-  while (first < pairs.size()) {  // one camera's run [first, last)
+  constexpr int64_t DIGITS = 256;
+  std::vector<int64_t> pos;  // per (chunk, digit): counts, then write positions
+  int64_t first = 0;
+  while (first < V) {  // one camera's run [first, last)
     const int64_t c = pairs[first].cn / N;
-    size_t last = first;
-    while (last < pairs.size() && pairs[last].cn / N == c) ++last;
+    int64_t last = first;
+    while (last < V && pairs[last].cn / N == c) ++last;
+    const int64_t n = last - first, chunks = std::max<int64_t>(1, std::min<int64_t>(64, n / 4096));
+    const int64_t len = (n + chunks - 1) / chunks;
+    pos.assign(chunks * DIGITS, 0);
     for (int shift = 0; shift < 32; shift += 8) {
-      size_t count[257] = {0};
-      for (size_t k = first; k < last; ++k) ++count[((key[k] >> shift) & 255) + 1];
-      if (*std::max_element(count + 1, count + 257) == last - first) continue;  // one bucket: order unchanged
-      for (int d = 0; d < 256; ++d) count[d + 1] += count[d];
-      for (size_t k = first; k < last; ++k) {
-        const size_t to = first + count[(key[k] >> shift) & 255]++;
-        tmp[to] = pairs[k];
-        key_tmp[to] = key[k];
+      std::fill(pos.begin(), pos.end(), 0);
+      at::parallel_for(0, chunks, 1, [&](int64_t b, int64_t e) {
+        for (int64_t k = b; k < e; ++k) {
+          int64_t* p = pos.data() + k * DIGITS;
+          for (int64_t i = first + k * len, end = std::min(last, first + (k + 1) * len); i < end; ++i)
+            ++p[(key[i] >> shift) & 255];
+        }
+      });
+      int64_t run = first;
+      bool one_bucket = false;
+      for (int64_t d = 0; d < DIGITS; ++d) {
+        const int64_t start = run;
+        for (int64_t k = 0; k < chunks; ++k) {
+          const int64_t count = pos[k * DIGITS + d];
+          pos[k * DIGITS + d] = run;
+          run += count;
+        }
+        one_bucket |= run - start == n;
       }
-      std::copy(tmp.begin() + first, tmp.begin() + last, pairs.begin() + first);
-      std::copy(key_tmp.begin() + first, key_tmp.begin() + last, key.begin() + first);
+      if (one_bucket) continue;  // every key shares this byte: the order is unchanged
+      at::parallel_for(0, chunks, 1, [&](int64_t b, int64_t e) {
+        for (int64_t k = b; k < e; ++k) {
+          int64_t* p = pos.data() + k * DIGITS;
+          for (int64_t i = first + k * len, end = std::min(last, first + (k + 1) * len); i < end; ++i) {
+            const int64_t to = p[(key[i] >> shift) & 255]++;
+            tmp[to] = pairs[i];
+            key_tmp[to] = key[i];
+          }
+        }
+      });
+      at::parallel_for(first, last, 8192, [&](int64_t b, int64_t e) {
+        std::copy(tmp.begin() + b, tmp.begin() + e, pairs.begin() + b);
+        std::copy(key_tmp.begin() + b, key_tmp.begin() + e, key.begin() + b);
+      });
     }
     first = last;
   }
@@ -252,7 +285,9 @@ inline void for_each_block(int64_t t, int64_t W, int64_t H, int64_t tile, Fn fn)
 
 // The pixels of a BLOCK x BLOCK block are composited in lockstep as VECS vectors of 8 floats (GCC/Clang vector
 // extensions: AVX2 registers with fused multiply-adds in the x86-64-v3 clone, pairs of SSE registers in the default
-// one).
+// one). The x86-64-v4 clone (AVX-512) runs the same 8-lane vectors with 32 registers instead of 16: the backward's
+// live state (the lanes' centres, T, the four suffix sums and the ten gradient accumulators) no longer spills, and
+// on the target command's trained model both passes are ~10 % faster with bit-identical outputs (docs/benchmarks.md).
 typedef float v8f __attribute__((vector_size(32)));
 typedef int32_t v8i __attribute__((vector_size(32)));
 constexpr int LANES = BLOCK * BLOCK, VECS = LANES / 8;
@@ -260,7 +295,7 @@ static_assert(LANES % 8 == 0, "a block must fill whole vectors");
 
 #define PR_INLINE inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__)
-#define PR_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))  // AVX2 + FMA; the loader picks
+#define PR_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))  // the loader picks
 #else
 #define PR_CLONES
 #endif
