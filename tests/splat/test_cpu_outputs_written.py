@@ -1,7 +1,7 @@
-"""Every entry of the C++ kernels' outputs is written, whatever the memory held before: the projection and the SH
-backward allocate theirs uninitialised (no zero-fill pass), and the compositor's must stay so if it ever does. The
-heap is poisoned with NaN, then with zeros, in blocks of the outputs' sizes (the allocator hands freed blocks back),
-and the two calls compared; dropping any one write from the kernels fails here."""
+"""Every entry of the C++ kernels' outputs is written, whatever the memory held before: the projection, the SH
+backward and the compositor's backward allocate theirs uninitialised (no zero-fill pass), and the compositor's forward
+must stay so if it ever does. The heap is poisoned with NaN, then with zeros, in blocks of the outputs' sizes (the
+allocator hands freed blocks back), and the two calls compared; dropping any one write from the kernels fails here."""
 
 import pytest
 import torch

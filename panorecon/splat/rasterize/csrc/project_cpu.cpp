@@ -82,12 +82,12 @@ struct Pair {
 // reads lambda as mid + sqrt(max(mid^2 - det, 0.01)) <= a + c + 0.1, so r = ceil(3 sqrt(lambda)) <= 3 sqrt(Q) + 1
 // with Q = |J|_F^2 s_max^2 + 2 eps + 0.1. The distances here use 1 / z where the exact path divides (a few ulps
 // apart), which the margins (1 % on Q, 2 px plus 1e-5 of the coordinates) cover; a NaN or an infinite Q leaves the
-// pair to the exact path. Vectors across Gaussians, in an AVX2 + FMA clone where the CPU has it (the loader picks):
+// pair to the exact path. Vectors across Gaussians, in AVX-512 and AVX2 + FMA clones where the CPU has them (the loader picks):
 // the baseline build ran these 8-lane vectors as pairs of SSE registers, and the projection's forward took 3.6 ms at
 // 330k Gaussians where it takes 2.0 ms now (two threads, the target command's model). The exact path stays in the
 // baseline build, so its outputs keep their bits; here a multiply-add's rounding moves no bound past its margin.
 #if defined(__x86_64__) && defined(__GNUC__)
-#define PR_PROJECT_CLONES __attribute__((target_clones("arch=x86-64-v3", "default"), noinline))
+#define PR_PROJECT_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default"), noinline))
 #else
 #define PR_PROJECT_CLONES
 #endif

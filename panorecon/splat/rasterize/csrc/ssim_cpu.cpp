@@ -13,7 +13,8 @@ namespace {
 constexpr float C1 = 0.01f * 0.01f, C2 = 0.03f * 0.03f;
 
 #if defined(__x86_64__) && defined(__GNUC__)
-#define SSIM_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+// AVX-512 (x86-64-v4), AVX2 + FMA (x86-64-v3) and baseline builds, bit-identical; the loader picks by CPU
+#define SSIM_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
 #define SSIM_CLONES
 #endif
