@@ -210,26 +210,33 @@ Bins bin(const float* m2d, const float* depth, const int32_t* radii, int64_t C, 
 
 // Per (camera, Gaussian) pair, the bounds beyond which its alpha is surely below 1/255: o exp(-sigma) < 1/255 once
 // sigma > ln(255 o) (sigma_cut), and since sigma >= 0.5 lambda_min(conic) |d|^2, once the squared pixel distance
-// |d|^2 > 2 ln(255 o) / lambda_min (disc). disc -1: never visible (also every culled pair, radius <= 0, which no
-// tile lists: no logarithm is spent on those). Both carry margins that keep the tests conservative under float
+// |d|^2 > 2 ln(255 o) / lambda_min (disc). disc -1: never visible. Kept for the visible pairs only, at their slot
+// (a culled pair, radius <= 0, is in no tile's list: neither a logarithm nor a store is spent on it, and the culled
+// ~90 % of a narrow view's [C, N] pairs are skipped without the index arithmetic). Both carry margins that keep the tests conservative under float
 // rounding; sigma's rounding error grows with its terms, up to lambda_max |d|^2, hence the condition number in the
 // margin of sigma_cut.
 struct Cutoffs {
   std::vector<float> disc, sigma;
 };
-Cutoffs cutoffs(const float* con, const float* op, const int32_t* radii, int64_t C, int64_t N) {
-  Cutoffs cut{std::vector<float>(C * N), std::vector<float>(C * N)};
-  at::parallel_for(0, C * N, 4096, [&](int64_t b, int64_t e) {
-    for (int64_t cn = b; cn < e; ++cn) {
-      const float o = op[cn % N];
-      if (radii[cn] <= 0 || o * 255.f <= 1.f) { cut.disc[cn] = cut.sigma[cn] = -1.f; continue; }
-      const float a = con[cn * 3], bb = con[cn * 3 + 1], c = con[cn * 3 + 2];
-      const float mid = 0.5f * (a + c), det = a * c - bb * bb, root = std::sqrt(std::max(mid * mid - det, 0.f));
-      const float lmin = mid - root, lmax = mid + root, level = std::log(o * 255.f);
-      cut.disc[cn] = lmin > 0.f ? 2.f * level / lmin * 1.001f + 1e-3f : INFINITY;
-      cut.sigma[cn] = lmin > 0.f ? level * (1.001f + 1e-5f * (lmax / lmin)) + 1e-3f : INFINITY;
-    }
-  });
+Cutoffs cutoffs(const float* con, const float* op, const int32_t* radii, int64_t C, int64_t N,
+                const std::vector<int32_t>& slot, int32_t V) {
+  Cutoffs cut{std::vector<float>(V), std::vector<float>(V)};  // per visible pair, at its slot
+  for (int64_t c = 0; c < C; ++c)
+    at::parallel_for(0, N, 4096, [&](int64_t b, int64_t e) {
+      for (int64_t n = b; n < e; ++n) {
+        const int64_t cn = c * N + n;
+        if (radii[cn] <= 0) continue;
+        const float o = op[n];
+        float& disc = cut.disc[slot[cn]];
+        float& sigma = cut.sigma[slot[cn]];
+        if (o * 255.f <= 1.f) { disc = sigma = -1.f; continue; }
+        const float a = con[cn * 3], bb = con[cn * 3 + 1], cc = con[cn * 3 + 2];
+        const float mid = 0.5f * (a + cc), det = a * cc - bb * bb, root = std::sqrt(std::max(mid * mid - det, 0.f));
+        const float lmin = mid - root, lmax = mid + root, level = std::log(o * 255.f);
+        disc = lmin > 0.f ? 2.f * level / lmin * 1.001f + 1e-3f : INFINITY;
+        sigma = lmin > 0.f ? level * (1.001f + 1e-5f * (lmax / lmin)) + 1e-3f : INFINITY;
+      }
+    });
   return cut;
 }
 
@@ -244,9 +251,10 @@ std::unique_ptr<float[]> zeroed_buffers(int64_t n_buf, int64_t len) {
 constexpr int64_t BLOCK = 4;  // pixels per side of the sub-tile blocks that pre-filter a tile's list
 inline int64_t blocks_per_tile(int64_t tile) { return ((tile + BLOCK - 1) / BLOCK) * ((tile + BLOCK - 1) / BLOCK); }
 
-// The kernel's read-only inputs, [C, N, ...] contiguous float32.
+// The kernel's read-only inputs, [C, N, ...] contiguous float32; the cutoffs per visible pair, at slot[c N + n].
 struct Inputs {
   const float *m2d, *con, *col, *op, *dz, *disc, *sigma_cut;
+  const int32_t* slot;
   int64_t N;
 };
 
@@ -261,7 +269,8 @@ struct TileGaussians {
     if (in.disc) {
       disc.resize(n); sigma_cut.resize(n);
       for (int64_t k = 0; k < n; ++k) {
-        disc[k] = in.disc[c * in.N + ids[k]]; sigma_cut[k] = in.sigma_cut[c * in.N + ids[k]];
+        const int32_t v = in.slot[c * in.N + ids[k]];
+        disc[k] = in.disc[v]; sigma_cut[k] = in.sigma_cut[v];
       }
     }
     for (int64_t k = 0; k < n; ++k) {
@@ -561,9 +570,11 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
   const std::vector<int32_t> slot = visible_slots(radii.data_ptr<int32_t>(), C * N, V);
   const Bins bins =
       bin(means2d.data_ptr<float>(), depths.data_ptr<float>(), radii.data_ptr<int32_t>(), C, N, W, H, tile, slot, V);
-  const Cutoffs cut = cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), radii.data_ptr<int32_t>(), C, N);
+  const Cutoffs cut =
+      cutoffs(conics.data_ptr<float>(), opacities.data_ptr<float>(), radii.data_ptr<int32_t>(), C, N, slot, V);
   const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
-                  opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.disc.data(), cut.sigma.data(), N};
+                  opacities.data_ptr<float>(), depths.data_ptr<float>(), cut.disc.data(), cut.sigma.data(),
+                  slot.data(), N};
   auto f = torch::TensorOptions().dtype(torch::kFloat32);
   auto image = torch::zeros({C, H, W, 3}, f), alpha = torch::zeros({C, H, W, 1}, f), depth = torch::zeros({C, H, W, 1}, f);
   auto T_final = torch::ones({C, H, W}, f);
@@ -661,7 +672,7 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
   const int64_t* bs = block_start.data_ptr<int64_t>();
   const int32_t* bp = block_pos.data_ptr<int32_t>();
   const Inputs in{means2d.data_ptr<float>(), conics.data_ptr<float>(), colors.data_ptr<float>(),
-                  opacities.data_ptr<float>(), depths.data_ptr<float>(), nullptr, nullptr, N};
+                  opacities.data_ptr<float>(), depths.data_ptr<float>(), nullptr, nullptr, nullptr, N};
   int32_t V = 0;
   const std::vector<int32_t> slot = visible_slots(rad, CN, V);
   const int64_t threads = at::get_num_threads();
