@@ -9,7 +9,10 @@ achieved rate, and its distance from the machine's limits measured in the same r
 time slices others took (a shared machine's wall seconds are inflated unevenly, most for multi-threaded stages).
 
 The limits: ``peak_gflops`` from an FMA loop on every thread (csrc/peak_cpu.cpp: 12 independent 8-lane
-accumulators, AVX2+FMA where the CPU has it; an FMA counts as 2 flops) and ``peak_gbs`` from a STREAM-like copy
+accumulators, AVX2+FMA where the CPU has it; an FMA counts as 2 flops), the width of the kernels' vectors, so the
+compute floors are those of the code as written; ``peak_gflops_16_lanes``, the same loop on 16 lanes where the CPU
+has AVX-512 (what 16-lane code could reach: the compute floors at that peak are ``peak_gflops`` /
+``peak_gflops_16_lanes`` of those below); and ``peak_gbs`` from a STREAM-like copy
 of two 64 MiB float32 arrays (read + write bytes; the copies' time alone, without the arrays' allocation and
 first touch, whose page faults cost several times the copies). A stage's floor is max(flops / peak_gflops, bytes /
 peak_gbs); ``distance`` = its time / that floor (1 = at the machine's limit), ``bound`` says which roof is nearer.
@@ -79,11 +82,14 @@ def machine_peaks(
     from panorecon.splat.rasterize import cpu_backend
 
     ext, now = cpu_backend.load(), _clock(clock)
-    rates = {"fma": [], "copy": []}
+    rates = {"fma": [], "fma16": [], "copy": []}
     for _ in range(repeats):
         t = now()
-        work = ext.peak_fma(fma_iters)[1]
+        work = ext.peak_fma(fma_iters, 8)[1]
         rates["fma"].append(work / (now() - t))
+        t = now()
+        work = ext.peak_fma(fma_iters // 2, 16)[1]  # [0, 0] without AVX-512
+        rates["fma16"].append(work / (now() - t) if work else 0.0)
         # the copies' own time: a call of 17 copies minus a call of 1, so that the allocation and first touch of
         # the two arrays inside each call (page faults: ~3 copies' time, and uneven) cancel
         t = now()
@@ -93,6 +99,7 @@ def machine_peaks(
         rates["copy"].append(work / max((now() - t1) - (t1 - t), 1e-9))
     return {
         "peak_gflops": max(rates["fma"]) / 1e9,
+        "peak_gflops_16_lanes": max(rates["fma16"]) / 1e9 or "n/a: this CPU has no AVX-512",
         "peak_gbs": max(rates["copy"]) / 1e9,
         "threads": torch.get_num_threads(),
         "clock": clock,

@@ -27,6 +27,10 @@ def test_tiny_roofline_reports_every_stage_with_finite_rates(sh_degree):
     r = roofline(64, 2_000, 1, sh_degree=sh_degree)
     assert r["sh_degree"] == (trainer_sh_degree() if sh_degree is None else sh_degree)
     assert r["peak_gflops"] > 0 and r["peak_gbs"] > 0
+    if torch.backends.cpu.get_cpu_capability() == "AVX512":
+        assert isinstance(r["peak_gflops_16_lanes"], float) and r["peak_gflops_16_lanes"] > 0
+    else:
+        assert str(r["peak_gflops_16_lanes"]).startswith("n/a:")
     stages = {s["stage"]: s for s in r["stages"]}
     assert set(stages) == {
         "projection_forward",

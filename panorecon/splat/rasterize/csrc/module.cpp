@@ -27,7 +27,7 @@ std::vector<torch::Tensor> sh_backward(torch::Tensor dc, torch::Tensor rest, tor
 std::vector<torch::Tensor> ssim_forward(torch::Tensor x, torch::Tensor y, torch::Tensor g);
 torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, torch::Tensor partials,
                             torch::Tensor g_mean);
-std::vector<double> peak_fma(int64_t iters);
+std::vector<double> peak_fma(int64_t iters, int64_t lanes);
 std::vector<double> stream_copy(int64_t n, int64_t repeats);
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
@@ -39,6 +39,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("sh_backward", &sh_backward, "SH colours of the visible Gaussians, backward");
   m.def("ssim_forward", &ssim_forward, "fused SSIM of planar images: mean of the map, and its partials");
   m.def("ssim_backward", &ssim_backward, "fused SSIM, gradient w.r.t. x");
-  m.def("peak_fma", &peak_fma, "FMA loop on every thread -> [seconds, flops]");
+  m.def("peak_fma", &peak_fma, "FMA loop on every thread, 8 or 16 lanes -> [seconds, flops]");
   m.def("stream_copy", &stream_copy, "STREAM-like copy on every thread -> [seconds, bytes]");
 }

@@ -141,8 +141,16 @@ void forward_impl(const T* means, const T* quats, const T* scales, const T* V, c
     std::vector<uint8_t> maybe(C * CHUNK);  // camera c's mask at c * CHUNK
     for (int64_t n0 = b0; n0 < e0; n0 += CHUNK) {
       const int64_t len = std::min(CHUNK, e0 - n0);
-      for (int64_t c = 0; c < C; ++c)
+      for (int64_t c = 0; c < C; ++c) {
         maybe_kept(cams[c], means, scales, n0, len, near, far, eps2d, (T)W, (T)H, maybe.data() + c * CHUNK);
+        // the chunk's rows of camera c are contiguous: zeroed in bulk (a culled pair's outputs), then the kept pairs
+        // written; seven scalar stores per pair took half the forward's time at 330k Gaussians, 90 % culled
+        const int64_t cn0 = c * N + n0;
+        std::fill(m2d + cn0 * 2, m2d + (cn0 + len) * 2, T(0));
+        std::fill(con + cn0 * 3, con + (cn0 + len) * 3, T(0));
+        std::fill(dep + cn0, dep + cn0 + len, T(0));
+        std::fill(rad + cn0, rad + cn0 + len, 0);
+      }
       for (int64_t k = 0; k < len; ++k) {
         const int64_t n = n0 + k;
         T Rq[9], qn[4], norm, M[9];
@@ -150,8 +158,6 @@ void forward_impl(const T* means, const T* quats, const T* scales, const T* V, c
         for (int64_t c = 0; c < C; ++c) {
           const Camera<T>& cam = cams[c];
           const int64_t cn = c * N + n;
-          m2d[cn * 2] = m2d[cn * 2 + 1] = con[cn * 3] = con[cn * 3 + 1] = con[cn * 3 + 2] = dep[cn] = T(0);
-          rad[cn] = 0;
           if (!maybe[c * CHUNK + k]) continue;
           Pair<T> P;
           P.view(cam, means + n * 3, near, far);
@@ -187,15 +193,16 @@ void backward_impl(const T* means, const T* quats, const T* scales, const T* V, 
   std::vector<Camera<T>> cams;
   for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
   parallel_dealt(N, 2048, [&](int64_t b0, int64_t e0) {
+    // a Gaussian culled by every camera gets no gradient: the chunk's rows are zeroed in bulk (the outputs are not
+    // zero-filled first), then the others written
+    std::fill(g_means + b0 * 3, g_means + e0 * 3, T(0));
+    std::fill(g_scales + b0 * 3, g_scales + e0 * 3, T(0));
+    std::fill(g_quats + b0 * 4, g_quats + e0 * 4, T(0));
     for (int64_t n = b0; n < e0; ++n) {
       T Rq[9], qn[4], norm, M[9], gM[9] = {0}, gm[3] = {0};
       bool any = false;
       for (int64_t c = 0; c < C; ++c) any = any || rad[c * N + n] > 0;
-      if (!any) {  // culled by every camera: no gradient (the outputs are written here, not zero-filled first)
-        for (int k = 0; k < 3; ++k) g_means[n * 3 + k] = g_scales[n * 3 + k] = T(0);
-        for (int k = 0; k < 4; ++k) g_quats[n * 4 + k] = T(0);
-        continue;
-      }
+      if (!any) continue;
       const T* s = scales + n * 3;
       quat_rotmat(quats + n * 4, Rq, qn, norm);
       for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
