@@ -166,3 +166,32 @@ def test_the_early_cull_keeps_every_gaussian_that_reaches_the_image(dtype):
     ):
         torch.testing.assert_close(a, b, rtol=1e-4 if dtype == torch.float32 else 1e-12, atol=1e-4)
     assert (out_c[1][~kept] == 0).all() and (out_c[0][~kept] == 0).all() and (out_c[2][~kept] == 0).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_culled_pairs_pass_no_gradient_whatever_arrives_for_them(dtype):
+    """The backward runs its Gaussians in vector lanes, a Gaussian kept by one camera beside others that camera culls:
+    the upstream gradients of culled pairs (here random, with NaN and inf among them) must not reach any Gaussian,
+    and a Gaussian culled by every camera gets exact zeros. Same gradients as with the culled pairs' upstream zeroed,
+    bit for bit."""
+    Vs, Ks = cameras(48, 32, dtype)
+    means, quats, scales = scene(403, 5, dtype)  # 403: the last vector of lanes is partial
+    ext = cpu_backend.load()
+    args = (means, quats / 1.0, scales, Vs, Ks)
+    radii = ext.project_forward(*args, 48, 32, 0.01, 1e10, 0.3)[3]
+    kept = radii > 0
+    assert kept.any(0).any() and (~kept.any(0)).any() and (kept[0] != kept[1]).any(), "mixed cases needed"
+    g = torch.Generator().manual_seed(6)
+    ups = [torch.randn(*radii.shape, k, generator=g, dtype=dtype) for k in (2, 3)] + [
+        torch.randn(radii.shape, generator=g, dtype=dtype)
+    ]
+    for u in ups:  # junk where culled
+        u.view(radii.numel(), -1)[(~kept).flatten().nonzero()[::3, 0]] = float("nan")
+        u.view(radii.numel(), -1)[(~kept).flatten().nonzero()[1::3, 0]] = float("inf")
+    clean = [torch.where(kept[..., None] if u.dim() == 3 else kept, u, torch.zeros_like(u)) for u in ups]
+    got = ext.project_backward(*args, radii, *ups, 48, 32, 0.01, 1e10, 0.3)
+    want = ext.project_backward(*args, radii, *clean, 48, 32, 0.01, 1e10, 0.3)
+    for name, a, b in zip(("means", "quats", "scales"), got, want):
+        assert torch.isfinite(a).all(), f"a culled pair's upstream gradient reached the {name}"
+        assert torch.equal(a, b), name
+        assert (a[~kept.any(0)] == 0).all(), f"a Gaussian no camera kept got a {name} gradient"

@@ -10,6 +10,7 @@
 #include "parallel_cpu.h"
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 #include <vector>
 
 namespace {
@@ -29,34 +30,52 @@ struct Camera {
   }
 };
 
+// Helpers that read the same on a scalar T and on a GCC vector of T (the backward runs its Gaussians in lanes):
+// std::max's and std::min's choices (NaN included), a broadcast, a lane-wise square root.
+template <typename V> inline V max_of(V a, V b) { return (a < b) ? b : a; }
+template <typename V> inline V min_of(V a, V b) { return (b < a) ? b : a; }
+template <typename V, typename S> inline V splat(S x) {  // x as V's element type, in every lane
+  if constexpr (std::is_floating_point_v<V>) return static_cast<V>(x);
+  else return V{} + static_cast<std::remove_cvref_t<decltype(V{}[0])>>(x);  // 0 + x == x exactly for x != -0
+}
+template <typename V> inline V sqrt_of(V x) {
+  if constexpr (std::is_floating_point_v<V>) {
+    return std::sqrt(x);
+  } else {
+    for (size_t i = 0; i < sizeof(V) / sizeof(x[0]); ++i) x[i] = std::sqrt(x[i]);
+    return x;
+  }
+}
+
 // Rotation matrix (row-major) of the normalised wxyz quaternion; a norm <= 1e-12 reads as the identity.
-template <typename T>
-inline void quat_rotmat(const T* q4, T* Rq, T* qn, T& norm) {
-  norm = std::sqrt(q4[0] * q4[0] + q4[1] * q4[1] + q4[2] * q4[2] + q4[3] * q4[3]);
-  if (norm > T(1e-12)) for (int k = 0; k < 4; ++k) qn[k] = q4[k] / norm;
-  else { qn[0] = 1; qn[1] = qn[2] = qn[3] = 0; }
-  const T w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+template <typename V>
+inline void quat_rotmat(const V* q4, V* Rq, V* qn, V& norm) {
+  norm = sqrt_of(q4[0] * q4[0] + q4[1] * q4[1] + q4[2] * q4[2] + q4[3] * q4[3]);
+  const auto big = norm > splat<V>(1e-12);
+  for (int k = 0; k < 4; ++k) qn[k] = big ? q4[k] / norm : splat<V>(k == 0 ? 1 : 0);
+  const V w = qn[0], x = qn[1], y = qn[2], z = qn[3];
   Rq[0] = 1 - 2 * (y * y + z * z); Rq[1] = 2 * (x * y - w * z); Rq[2] = 2 * (x * z + w * y);
   Rq[3] = 2 * (x * y + w * z); Rq[4] = 1 - 2 * (x * x + z * z); Rq[5] = 2 * (y * z - w * x);
   Rq[6] = 2 * (x * z - w * y); Rq[7] = 2 * (y * z + w * x); Rq[8] = 1 - 2 * (x * x + y * y);
 }
 
 // The quantities of one (camera, Gaussian) pair that forward and backward share: view() the camera-space mean and
-// the Jacobian's entries, cov() the 2D covariance (a b; b c) from them and M = rot(q) diag(s).
-template <typename T>
+// the Jacobian's entries, cov() the 2D covariance (a b; b c) from them and M = rot(q) diag(s). V: T, or a vector of
+// T whose lanes are Gaussians (the same operations in the same order, so each lane is the scalar's to the bit).
+template <typename T, typename V = T>
 struct Pair {
-  T p[3], zs, rx, ry, j00, j02, j11, j12, T0[3], T1[3], A0[3], A1[3], a, b, c, det;
-  bool z_ok;
-  void view(const Camera<T>& cam, const T* m, T near, T far) {
+  V p[3], zs, rx, ry, j00, j02, j11, j12, T0[3], T1[3], A0[3], A1[3], a, b, c, det;
+  decltype(V{} < V{}) z_ok;
+  void view(const Camera<T>& cam, const V* m, T near, T far) {
     for (int r = 0; r < 3; ++r)
       p[r] = cam.R[r * 3] * m[0] + cam.R[r * 3 + 1] * m[1] + cam.R[r * 3 + 2] * m[2] + cam.t[r];
-    z_ok = p[2] > near && p[2] < far;
-    zs = z_ok ? p[2] : T(1);
-    rx = std::min(std::max(p[0] / zs, cam.lo_x), cam.hi_x);
-    ry = std::min(std::max(p[1] / zs, cam.lo_y), cam.hi_y);
+    z_ok = (p[2] > near) & (p[2] < far);
+    zs = z_ok ? p[2] : splat<V>(T(1));
+    rx = min_of(max_of(p[0] / zs, splat<V>(cam.lo_x)), splat<V>(cam.hi_x));
+    ry = min_of(max_of(p[1] / zs, splat<V>(cam.lo_y)), splat<V>(cam.hi_y));
     j00 = cam.fx / zs; j02 = -cam.fx * rx / zs; j11 = cam.fy / zs; j12 = -cam.fy * ry / zs;
   }
-  void cov(const Camera<T>& cam, const T* M, T eps2d) {
+  void cov(const Camera<T>& cam, const V* M, T eps2d) {
     for (int k = 0; k < 3; ++k) {
       T0[k] = j00 * cam.R[k] + j02 * cam.R[6 + k];
       T1[k] = j11 * cam.R[3 + k] + j12 * cam.R[6 + k];
@@ -70,7 +89,7 @@ struct Pair {
     c = A1[0] * A1[0] + A1[1] * A1[1] + A1[2] * A1[2] + eps2d;
     det = a * c - b * b;
   }
-  void compute(const Camera<T>& cam, const T* m, const T* M, T near, T far, T eps2d) {
+  void compute(const Camera<T>& cam, const V* m, const V* M, T near, T far, T eps2d) {
     view(cam, m, near, far);
     cov(cam, M, eps2d);
   }
@@ -186,83 +205,139 @@ void forward_impl(const T* means, const T* quats, const T* scales, const T* V, c
   });
 }
 
+#if defined(__x86_64__) && defined(__GNUC__)
+// AVX-512, AVX2 and baseline builds, none of which contracts a multiply and an add into one rounding
+#define PR_LANES_CLONES \
+  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default"), optimize("fp-contract=off")))
+#else
+#define PR_LANES_CLONES
+#endif
+
+// 32 bytes of T, as a type that keeps its vector attribute when passed as a template argument (a dependent typedef
+// would lose it)
+template <typename T> struct Lanes;
+template <> struct Lanes<float> { typedef float type __attribute__((vector_size(32))); };
+template <> struct Lanes<double> { typedef double type __attribute__((vector_size(32))); };
+
+// The gradients of up to L = 32 / sizeof(T) Gaussians idx[0 .. nl) at once, one per lane of a GCC vector (the
+// lanes past nl repeat the last one and are not written): the scalar formulas, operation for operation, so that
+// every lane rounds as the scalar code did (this function is built only for the baseline target, where nothing is
+// contracted into a fused multiply-add). A lane takes a camera's terms only where that pair was kept (radius > 0).
+template <typename T>
+PR_LANES_CLONES void backward_lanes(const std::vector<Camera<T>>& cams, int64_t N, const int64_t* idx, int nl, const T* means,
+                    const T* quats, const T* scales, const int32_t* rad, const T* g_m2d, const T* g_con,
+                    const T* g_dep, T near, T far, T eps2d, T* g_means, T* g_quats, T* g_scales) {
+  using V = typename Lanes<T>::type;
+  constexpr int L = 32 / sizeof(T);
+  const V zero = {};
+  V m[3], q4[4], s[3];
+  for (int i = 0; i < L; ++i) {
+    const int64_t n = idx[std::min(i, nl - 1)];
+    for (int k = 0; k < 3; ++k) { m[k][i] = means[n * 3 + k]; s[k][i] = scales[n * 3 + k]; }
+    for (int k = 0; k < 4; ++k) q4[k][i] = quats[n * 4 + k];
+  }
+  V Rq[9], qn[4], norm, M[9], gM[9], gm[3];
+  for (int i = 0; i < 9; ++i) gM[i] = zero;
+  for (int j = 0; j < 3; ++j) gm[j] = zero;
+  quat_rotmat(q4, Rq, qn, norm);
+  for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
+  for (int64_t c = 0; c < (int64_t)cams.size(); ++c) {
+    decltype(V{} < V{}) kept;
+    V q0, q1, q2, gu, gv, gd;
+    bool any = false;
+    for (int i = 0; i < L; ++i) {
+      const int64_t cn = c * N + idx[std::min(i, nl - 1)];
+      kept[i] = rad[cn] > 0 ? -1 : 0;
+      any = any || rad[cn] > 0;
+      q0[i] = g_con[cn * 3]; q1[i] = g_con[cn * 3 + 1]; q2[i] = g_con[cn * 3 + 2];
+      gu[i] = g_m2d[cn * 2]; gv[i] = g_m2d[cn * 2 + 1]; gd[i] = g_dep[cn];
+    }
+    if (!any) continue;
+    const Camera<T>& cam = cams[c];
+    Pair<T, V> P;
+    P.compute(cam, m, M, near, far, eps2d);  // z_ok and det > 0 hold in the kept lanes
+    const V z = P.zs, a = P.a, b = P.b, cc = P.c, d2 = P.det * P.det;
+    // conic (c, -b, a) / det  ->  a, b, c
+    const V ga = (-cc * cc * q0 + b * cc * q1 - b * b * q2) / d2;
+    const V gb = (2 * b * cc * q0 - (a * cc + b * b) * q1 + 2 * a * b * q2) / d2;
+    const V gc = (-b * b * q0 + a * b * q1 - a * a * q2) / d2;
+    V gA0[3], gA1[3], gT0[3] = {zero, zero, zero}, gT1[3] = {zero, zero, zero};
+    for (int k = 0; k < 3; ++k) {
+      gA0[k] = 2 * ga * P.A0[k] + gb * P.A1[k];
+      gA1[k] = 2 * gc * P.A1[k] + gb * P.A0[k];
+    }
+    for (int i = 0; i < 3; ++i)
+      for (int k = 0; k < 3; ++k) {  // A0_k = sum_i T0_i M_ik
+        gT0[i] += gA0[k] * M[i * 3 + k];
+        gT1[i] += gA1[k] * M[i * 3 + k];
+        gM[i * 3 + k] = kept ? gM[i * 3 + k] + (P.T0[i] * gA0[k] + P.T1[i] * gA1[k]) : gM[i * 3 + k];
+      }
+    const T* R = cam.R;
+    const V g00 = gT0[0] * R[0] + gT0[1] * R[1] + gT0[2] * R[2], g02 = gT0[0] * R[6] + gT0[1] * R[7] + gT0[2] * R[8];
+    const V g11 = gT1[0] * R[3] + gT1[1] * R[4] + gT1[2] * R[5], g12 = gT1[0] * R[6] + gT1[1] * R[7] + gT1[2] * R[8];
+    V gp[3] = {zero, zero, zero};
+    // j00 = fx / z, j02 = -fx rx / z with rx = clamp(x / z) (no gradient where the clamp holds); same for y
+    gp[2] += -cam.fx / (z * z) * g00 - cam.fy / (z * z) * g11 + cam.fx * P.rx / (z * z) * g02 + cam.fy * P.ry / (z * z) * g12;
+    const V grx = -cam.fx / z * g02, gry = -cam.fy / z * g12;
+    const V px = P.p[0] / z, py = P.p[1] / z;
+    const auto in_x = (px > cam.lo_x) & (px < cam.hi_x), in_y = (py > cam.lo_y) & (py < cam.hi_y);
+    gp[0] = in_x ? gp[0] + grx / z : gp[0];
+    gp[2] = in_x ? gp[2] - grx * px / z : gp[2];
+    gp[1] = in_y ? gp[1] + gry / z : gp[1];
+    gp[2] = in_y ? gp[2] - gry * py / z : gp[2];
+    // means2d = (fx x / z + cx, fy y / z + cy); depth = z
+    gp[0] += gu * cam.fx / z; gp[1] += gv * cam.fy / z;
+    gp[2] += -(gu * cam.fx * px + gv * cam.fy * py) / z + gd;
+    for (int j = 0; j < 3; ++j) gm[j] = kept ? gm[j] + (R[j] * gp[0] + R[3 + j] * gp[1] + R[6 + j] * gp[2]) : gm[j];
+  }
+  // M = Rq diag(s)
+  V gs[3], G[9];
+  for (int k = 0; k < 3; ++k) gs[k] = gM[k] * Rq[k] + gM[3 + k] * Rq[3 + k] + gM[6 + k] * Rq[6 + k];
+  for (int i = 0; i < 9; ++i) G[i] = gM[i] * s[i % 3];
+  const V w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+  V gq[4];
+  gq[0] = 2 * (-z * G[1] + y * G[2] + z * G[3] - x * G[5] - y * G[6] + x * G[7]);
+  gq[1] = 2 * (y * G[1] + z * G[2] + y * G[3] - 2 * x * G[4] - w * G[5] + z * G[6] + w * G[7] - 2 * x * G[8]);
+  gq[2] = 2 * (-2 * y * G[0] + x * G[1] + w * G[2] + x * G[3] + z * G[5] - w * G[6] + z * G[7] - 2 * y * G[8]);
+  gq[3] = 2 * (-2 * z * G[0] - w * G[1] + x * G[2] + w * G[3] - 2 * z * G[4] + y * G[5] + x * G[6] + y * G[7]);
+  const V dot = w * gq[0] + x * gq[1] + y * gq[2] + z * gq[3];  // through q / |q|
+  for (int i = 0; i < nl; ++i) {
+    const int64_t n = idx[i];
+    for (int j = 0; j < 3; ++j) { g_means[n * 3 + j] = gm[j][i]; g_scales[n * 3 + j] = gs[j][i]; }
+    if (!(norm[i] > T(1e-12))) continue;  // the identity stand-in has no gradient (its row stays zero)
+    for (int k = 0; k < 4; ++k) g_quats[n * 4 + k] = (gq[k][i] - qn[k][i] * dot[i]) / norm[i];
+  }
+}
+
 template <typename T>
 void backward_impl(const T* means, const T* quats, const T* scales, const T* V, const T* K, const int32_t* rad,
                    const T* g_m2d, const T* g_con, const T* g_dep, int64_t C, int64_t N, int64_t W, int64_t H, T near,
                    T far, T eps2d, T* g_means, T* g_quats, T* g_scales) {
   std::vector<Camera<T>> cams;
   for (int64_t c = 0; c < C; ++c) cams.emplace_back(V + c * 16, K + c * 9, W, H);
+  constexpr int L = 32 / sizeof(T);
   parallel_dealt(N, 2048, [&](int64_t b0, int64_t e0) {
     // a Gaussian culled by every camera gets no gradient: the chunk's rows are zeroed in bulk (the outputs are not
-    // zero-filled first), then the others written
+    // zero-filled first), then the others written, L at a time
     std::fill(g_means + b0 * 3, g_means + e0 * 3, T(0));
     std::fill(g_scales + b0 * 3, g_scales + e0 * 3, T(0));
     std::fill(g_quats + b0 * 4, g_quats + e0 * 4, T(0));
+    int64_t idx[L];
+    int nl = 0;
     for (int64_t n = b0; n < e0; ++n) {
-      T Rq[9], qn[4], norm, M[9], gM[9] = {0}, gm[3] = {0};
       bool any = false;
       for (int64_t c = 0; c < C; ++c) any = any || rad[c * N + n] > 0;
       if (!any) continue;
-      const T* s = scales + n * 3;
-      quat_rotmat(quats + n * 4, Rq, qn, norm);
-      for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
-      for (int64_t c = 0; c < C; ++c) {
-        const int64_t cn = c * N + n;
-        if (rad[cn] <= 0) continue;
-        const Camera<T>& cam = cams[c];
-        Pair<T> P;
-        P.compute(cam, means + n * 3, M, near, far, eps2d);  // z_ok and det > 0 hold: the pair was kept
-        const T z = P.zs, a = P.a, b = P.b, cc = P.c, d2 = P.det * P.det;
-        const T q0 = g_con[cn * 3], q1 = g_con[cn * 3 + 1], q2 = g_con[cn * 3 + 2];
-        // conic (c, -b, a) / det  ->  a, b, c
-        const T ga = (-cc * cc * q0 + b * cc * q1 - b * b * q2) / d2;
-        const T gb = (2 * b * cc * q0 - (a * cc + b * b) * q1 + 2 * a * b * q2) / d2;
-        const T gc = (-b * b * q0 + a * b * q1 - a * a * q2) / d2;
-        T gA0[3], gA1[3], gT0[3] = {0}, gT1[3] = {0};
-        for (int k = 0; k < 3; ++k) {
-          gA0[k] = 2 * ga * P.A0[k] + gb * P.A1[k];
-          gA1[k] = 2 * gc * P.A1[k] + gb * P.A0[k];
-        }
-        for (int i = 0; i < 3; ++i)
-          for (int k = 0; k < 3; ++k) {  // A0_k = sum_i T0_i M_ik
-            gT0[i] += gA0[k] * M[i * 3 + k];
-            gT1[i] += gA1[k] * M[i * 3 + k];
-            gM[i * 3 + k] += P.T0[i] * gA0[k] + P.T1[i] * gA1[k];
-          }
-        const T* R = cam.R;
-        const T g00 = gT0[0] * R[0] + gT0[1] * R[1] + gT0[2] * R[2], g02 = gT0[0] * R[6] + gT0[1] * R[7] + gT0[2] * R[8];
-        const T g11 = gT1[0] * R[3] + gT1[1] * R[4] + gT1[2] * R[5], g12 = gT1[0] * R[6] + gT1[1] * R[7] + gT1[2] * R[8];
-        T gp[3] = {0, 0, 0};
-        // j00 = fx / z, j02 = -fx rx / z with rx = clamp(x / z) (no gradient where the clamp holds); same for y
-        gp[2] += -cam.fx / (z * z) * g00 - cam.fy / (z * z) * g11 + cam.fx * P.rx / (z * z) * g02 + cam.fy * P.ry / (z * z) * g12;
-        const T grx = -cam.fx / z * g02, gry = -cam.fy / z * g12;
-        const T px = P.p[0] / z, py = P.p[1] / z;
-        if (px > cam.lo_x && px < cam.hi_x) { gp[0] += grx / z; gp[2] -= grx * px / z; }
-        if (py > cam.lo_y && py < cam.hi_y) { gp[1] += gry / z; gp[2] -= gry * py / z; }
-        // means2d = (fx x / z + cx, fy y / z + cy); depth = z
-        const T gu = g_m2d[cn * 2], gv = g_m2d[cn * 2 + 1];
-        gp[0] += gu * cam.fx / z; gp[1] += gv * cam.fy / z;
-        gp[2] += -(gu * cam.fx * px + gv * cam.fy * py) / z + g_dep[cn];
-        for (int j = 0; j < 3; ++j) gm[j] += R[j] * gp[0] + R[3 + j] * gp[1] + R[6 + j] * gp[2];
+      idx[nl++] = n;
+      if (nl == L) {
+        backward_lanes(cams, N, idx, nl, means, quats, scales, rad, g_m2d, g_con, g_dep, near, far, eps2d, g_means,
+                       g_quats, g_scales);
+        nl = 0;
       }
-      for (int j = 0; j < 3; ++j) g_means[n * 3 + j] = gm[j];
-      // M = Rq diag(s)
-      T G[9];
-      for (int k = 0; k < 3; ++k) g_scales[n * 3 + k] = gM[k] * Rq[k] + gM[3 + k] * Rq[3 + k] + gM[6 + k] * Rq[6 + k];
-      for (int i = 0; i < 9; ++i) G[i] = gM[i] * s[i % 3];
-      if (!(norm > T(1e-12))) {  // the identity stand-in has no gradient
-        for (int k = 0; k < 4; ++k) g_quats[n * 4 + k] = T(0);
-        continue;
-      }
-      const T w = qn[0], x = qn[1], y = qn[2], z = qn[3];
-      T gq[4];
-      gq[0] = 2 * (-z * G[1] + y * G[2] + z * G[3] - x * G[5] - y * G[6] + x * G[7]);
-      gq[1] = 2 * (y * G[1] + z * G[2] + y * G[3] - 2 * x * G[4] - w * G[5] + z * G[6] + w * G[7] - 2 * x * G[8]);
-      gq[2] = 2 * (-2 * y * G[0] + x * G[1] + w * G[2] + x * G[3] + z * G[5] - w * G[6] + z * G[7] - 2 * y * G[8]);
-      gq[3] = 2 * (-2 * z * G[0] - w * G[1] + x * G[2] + w * G[3] - 2 * z * G[4] + y * G[5] + x * G[6] + y * G[7]);
-      const T dot = w * gq[0] + x * gq[1] + y * gq[2] + z * gq[3];  // through q / |q|
-      for (int k = 0; k < 4; ++k) g_quats[n * 4 + k] = (gq[k] - qn[k] * dot) / norm;
     }
+    if (nl)
+      backward_lanes(cams, N, idx, nl, means, quats, scales, rad, g_m2d, g_con, g_dep, near, far, eps2d, g_means,
+                     g_quats, g_scales);
   });
 }
 
