@@ -195,3 +195,19 @@ def test_culled_pairs_pass_no_gradient_whatever_arrives_for_them(dtype):
         assert torch.isfinite(a).all(), f"a culled pair's upstream gradient reached the {name}"
         assert torch.equal(a, b), name
         assert (a[~kept.any(0)] == 0).all(), f"a Gaussian no camera kept got a {name} gradient"
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_mean_between_the_cull_margin_and_the_near_plane_is_culled(dtype):
+    """The vectorised bound lets through z down to 0.999 near (its rounding margin); the exact path must then cull
+    what lies at or before the near plane, as the reference does, while its lane neighbours stay kept."""
+    Vs, Ks = cameras(48, 32, dtype)
+    near = 0.01
+    means = torch.tensor([[near * 0.9995, 0.0, 0.0], [near, 0.0, 0.0], [0.5, 0.0, 0.0], [near * 1.001, 0.0, 0.0]])
+    means = means.to(dtype).repeat(3, 1)  # twelve: a full vector of floats and a partial one
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype).repeat(len(means), 1)
+    scales = torch.full((len(means), 3), 1e-3, dtype=dtype)
+    radii_c = cpu_backend.project(means, quats, scales, Vs[:1], Ks[:1], 48, 32, near_plane=near)[3]
+    radii_t = project_gaussians(means, quats, scales, Vs[:1], Ks[:1], 48, 32, near_plane=near)[3]
+    assert (radii_t[0, 0::4] == 0).all() and (radii_t[0, 1::4] == 0).all() and (radii_t[0, 2::4] > 0).all()
+    assert torch.equal(radii_c, radii_t.to(radii_c.dtype))
