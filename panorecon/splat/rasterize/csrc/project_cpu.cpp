@@ -160,6 +160,35 @@ template <typename T> struct Lanes;
 template <> struct Lanes<float> { typedef float type __attribute__((vector_size(32))); };
 template <> struct Lanes<double> { typedef double type __attribute__((vector_size(32))); };
 
+// The Gaussians idx[0 .. nl) in the lanes of V (the lanes past nl repeat the last one): mean m, scale s, and from
+// them rot(q) (Rq), the normalised quaternion qn, its norm and M = rot(q) diag(s), which both passes need.
+template <typename T, typename V>
+struct GaussianLanes {
+  V m[3], s[3], q4[4], Rq[9], qn[4], norm, M[9];
+  GaussianLanes(const int64_t* idx, int nl, const T* means, const T* quats, const T* scales) {
+    for (int i = 0; i < (int)(sizeof(V) / sizeof(T)); ++i) {
+      const int64_t n = idx[std::min(i, nl - 1)];
+      for (int k = 0; k < 3; ++k) { m[k][i] = means[n * 3 + k]; s[k][i] = scales[n * 3 + k]; }
+      for (int k = 0; k < 4; ++k) q4[k][i] = quats[n * 4 + k];
+    }
+    quat_rotmat(q4, Rq, qn, norm);
+    for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
+  }
+};
+
+// Calls fn(idx, nl) for the n in [b, e) with keep(n), L of them at a time (the last call may hold fewer).
+template <int L, typename Keep, typename Fn>
+inline void in_lanes(int64_t b, int64_t e, Keep keep, Fn fn) {
+  int64_t idx[L];
+  int nl = 0;
+  for (int64_t n = b; n < e; ++n) {
+    if (!keep(n)) continue;
+    idx[nl++] = n;
+    if (nl == L) { fn(idx, nl); nl = 0; }
+  }
+  if (nl) fn(idx, nl);
+}
+
 // The outputs of up to L = 32 / sizeof(T) pairs of camera cam, Gaussians idx[0 .. nl), at once, one per lane (the
 // lanes past nl repeat the last one and are not written): the exact path's formulas, operation for operation, as in
 // backward_lanes, so that every lane rounds as the scalar code did; a pair it culls keeps its zeros.
@@ -168,18 +197,9 @@ PR_LANES_CLONES void forward_lanes(const Camera<T>& cam, int64_t c, int64_t N, c
                                    const T* means, const T* quats, const T* scales, int64_t W, int64_t H, T near,
                                    T far, T eps2d, T* m2d, T* con, T* dep, int32_t* rad) {
   using V = typename Lanes<T>::type;
-  constexpr int L = 32 / sizeof(T);
-  V m[3], q4[4], s[3];
-  for (int i = 0; i < L; ++i) {
-    const int64_t n = idx[std::min(i, nl - 1)];
-    for (int k = 0; k < 3; ++k) { m[k][i] = means[n * 3 + k]; s[k][i] = scales[n * 3 + k]; }
-    for (int k = 0; k < 4; ++k) q4[k][i] = quats[n * 4 + k];
-  }
-  V Rq[9], qn[4], norm, M[9];
-  quat_rotmat(q4, Rq, qn, norm);
-  for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
+  const GaussianLanes<T, V> g(idx, nl, means, quats, scales);
   Pair<T, V> P;
-  P.compute(cam, m, M, near, far, eps2d);
+  P.compute(cam, g.m, g.M, near, far, eps2d);
   const auto ok = P.det > 0;
   const V det_s = ok ? P.det : splat<V>(1);
   const V mid = T(0.5) * (P.a + P.c);
@@ -222,26 +242,18 @@ void forward_impl(const T* means, const T* quats, const T* scales, const T* V, c
         std::fill(con + cn0 * 3, con + (cn0 + len) * 3, T(0));
         std::fill(dep + cn0, dep + cn0 + len, T(0));
         std::fill(rad + cn0, rad + cn0 + len, 0);
-        int64_t idx[L];
-        int nl = 0;
-        for (int64_t k = 0; k < len; ++k) {
-          if (!maybe[k]) continue;
-          idx[nl++] = n0 + k;
-          if (nl == L) {
-            forward_lanes(cams[c], c, N, idx, nl, means, quats, scales, W, H, near, far, eps2d, m2d, con, dep, rad);
-            nl = 0;
-          }
-        }
-        if (nl) forward_lanes(cams[c], c, N, idx, nl, means, quats, scales, W, H, near, far, eps2d, m2d, con, dep, rad);
+        in_lanes<L>(n0, n0 + len, [&](int64_t n) { return maybe[n - n0] != 0; }, [&](const int64_t* idx, int nl) {
+          forward_lanes(cams[c], c, N, idx, nl, means, quats, scales, W, H, near, far, eps2d, m2d, con, dep, rad);
+        });
       }
     }
   });
 }
 
 // The gradients of up to L = 32 / sizeof(T) Gaussians idx[0 .. nl) at once, one per lane of a GCC vector (the
-// lanes past nl repeat the last one and are not written): the scalar formulas, operation for operation, so that
-// every lane rounds as the scalar code did (this function is built only for the baseline target, where nothing is
-// contracted into a fused multiply-add). A lane takes a camera's terms only where that pair was kept (radius > 0).
+// lanes past nl repeat the last one and are not written): the formulas operation for operation, with no multiply-add
+// contracted, so that every lane rounds as scalar code of them would. A lane takes a camera's terms only where that
+// pair was kept (radius > 0).
 template <typename T>
 PR_LANES_CLONES void backward_lanes(const std::vector<Camera<T>>& cams, int64_t N, const int64_t* idx, int nl, const T* means,
                     const T* quats, const T* scales, const int32_t* rad, const T* g_m2d, const T* g_con,
@@ -249,17 +261,11 @@ PR_LANES_CLONES void backward_lanes(const std::vector<Camera<T>>& cams, int64_t 
   using V = typename Lanes<T>::type;
   constexpr int L = 32 / sizeof(T);
   const V zero = {};
-  V m[3], q4[4], s[3];
-  for (int i = 0; i < L; ++i) {
-    const int64_t n = idx[std::min(i, nl - 1)];
-    for (int k = 0; k < 3; ++k) { m[k][i] = means[n * 3 + k]; s[k][i] = scales[n * 3 + k]; }
-    for (int k = 0; k < 4; ++k) q4[k][i] = quats[n * 4 + k];
-  }
-  V Rq[9], qn[4], norm, M[9], gM[9], gm[3];
+  const GaussianLanes<T, V> g(idx, nl, means, quats, scales);
+  const V *M = g.M, *Rq = g.Rq, *qn = g.qn, &norm = g.norm;
+  V gM[9], gm[3];
   for (int i = 0; i < 9; ++i) gM[i] = zero;
   for (int j = 0; j < 3; ++j) gm[j] = zero;
-  quat_rotmat(q4, Rq, qn, norm);
-  for (int i = 0; i < 9; ++i) M[i] = Rq[i] * s[i % 3];
   for (int64_t c = 0; c < (int64_t)cams.size(); ++c) {
     decltype(V{} < V{}) kept;
     V q0, q1, q2, gu, gv, gd;
@@ -274,7 +280,7 @@ PR_LANES_CLONES void backward_lanes(const std::vector<Camera<T>>& cams, int64_t 
     if (!any) continue;
     const Camera<T>& cam = cams[c];
     Pair<T, V> P;
-    P.compute(cam, m, M, near, far, eps2d);  // z_ok and det > 0 hold in the kept lanes
+    P.compute(cam, g.m, M, near, far, eps2d);  // z_ok and det > 0 hold in the kept lanes
     const V z = P.zs, a = P.a, b = P.b, cc = P.c, d2 = P.det * P.det;
     // conic (c, -b, a) / det  ->  a, b, c
     const V ga = (-cc * cc * q0 + b * cc * q1 - b * b * q2) / d2;
@@ -312,7 +318,7 @@ PR_LANES_CLONES void backward_lanes(const std::vector<Camera<T>>& cams, int64_t 
   // M = Rq diag(s)
   V gs[3], G[9];
   for (int k = 0; k < 3; ++k) gs[k] = gM[k] * Rq[k] + gM[3 + k] * Rq[3 + k] + gM[6 + k] * Rq[6 + k];
-  for (int i = 0; i < 9; ++i) G[i] = gM[i] * s[i % 3];
+  for (int i = 0; i < 9; ++i) G[i] = gM[i] * g.s[i % 3];
   const V w = qn[0], x = qn[1], y = qn[2], z = qn[3];
   V gq[4];
   gq[0] = 2 * (-z * G[1] + y * G[2] + z * G[3] - x * G[5] - y * G[6] + x * G[7]);
@@ -341,22 +347,15 @@ void backward_impl(const T* means, const T* quats, const T* scales, const T* V, 
     std::fill(g_means + b0 * 3, g_means + e0 * 3, T(0));
     std::fill(g_scales + b0 * 3, g_scales + e0 * 3, T(0));
     std::fill(g_quats + b0 * 4, g_quats + e0 * 4, T(0));
-    int64_t idx[L];
-    int nl = 0;
-    for (int64_t n = b0; n < e0; ++n) {
-      bool any = false;
-      for (int64_t c = 0; c < C; ++c) any = any || rad[c * N + n] > 0;
-      if (!any) continue;
-      idx[nl++] = n;
-      if (nl == L) {
-        backward_lanes(cams, N, idx, nl, means, quats, scales, rad, g_m2d, g_con, g_dep, near, far, eps2d, g_means,
-                       g_quats, g_scales);
-        nl = 0;
-      }
-    }
-    if (nl)
+    auto any_kept = [&](int64_t n) {
+      for (int64_t c = 0; c < C; ++c)
+        if (rad[c * N + n] > 0) return true;
+      return false;
+    };
+    in_lanes<L>(b0, e0, any_kept, [&](const int64_t* idx, int nl) {
       backward_lanes(cams, N, idx, nl, means, quats, scales, rad, g_m2d, g_con, g_dep, near, far, eps2d, g_means,
                      g_quats, g_scales);
+    });
   });
 }
 

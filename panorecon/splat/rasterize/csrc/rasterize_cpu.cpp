@@ -123,9 +123,8 @@ std::vector<VisiblePair> visible_by_depth(const float* m2d, const float* depth, 
     while (last < V && pairs[last].c == c) ++last;
     const int64_t n = last - first, chunks = std::max<int64_t>(1, std::min<int64_t>(64, n / 4096));
     const int64_t len = (n + chunks - 1) / chunks;
-    pos.assign(chunks * DIGITS, 0);
     for (int shift = 0; shift < 32; shift += 8) {
-      std::fill(pos.begin(), pos.end(), 0);
+      pos.assign(chunks * DIGITS, 0);
       at::parallel_for(0, chunks, 1, [&](int64_t b, int64_t e) {
         for (int64_t k = b; k < e; ++k) {
           int64_t* p = pos.data() + k * DIGITS;
