@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from .model import PARAM_NAMES, GaussianModel
-from .rasterize import quat_to_rotmat
+from .rasterize import cpu_backend, quat_to_rotmat
 
 
 def edit_parameters(
@@ -76,17 +76,13 @@ class DefaultStrategy:
         n = len(model)
         if self.grad_sum is None or len(self.grad_sum) != n:
             self.grad_sum, self.count = torch.zeros(n, device=g.device), torch.zeros(n, device=g.device)
+        if g.device.type == "cpu" and cpu_backend.available():  # one pass in C++, the same sums
+            cpu_backend.accumulate_screen_grads(self.grad_sum, self.count, g, meta["radii"], width, height)
+            return
         ndc = torch.tensor([width / 2, height / 2], device=g.device)
         vis = meta["radii"] > 0  # [C, N]
-        if g.device.type != "cpu":  # every row (a row index would read the GPU's count back every step)
-            self.grad_sum += ((g.detach() * ndc).norm(dim=-1) * vis).sum(0)
-            self.count += vis.sum(0)
-            return
-        # the rows some camera sees (~9 % in a 60° view): the same sums, the other rows get exactly + 0
-        rows = torch.nonzero(vis.any(0)).flatten()
-        seen = vis[:, rows]
-        self.grad_sum.index_add_(0, rows, ((g.detach()[:, rows] * ndc).norm(dim=-1) * seen).sum(0))
-        self.count.index_add_(0, rows, seen.sum(0).to(self.count.dtype))
+        self.grad_sum += ((g.detach() * ndc).norm(dim=-1) * vis).sum(0)
+        self.count += vis.sum(0)
 
     def prune_mask(self, model: GaussianModel, it: int) -> torch.Tensor:
         """[N] bool: Gaussians to remove at this refinement (3DGS: opacity below ``prune_opacity``)."""

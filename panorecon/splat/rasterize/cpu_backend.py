@@ -1,13 +1,11 @@
 """The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians), SH colours of the visible
-Gaussians (csrc/sh_cpu.cpp, parallel over Gaussians) and tiled compositing
-(csrc/rasterize_cpu.cpp, parallel over tiles) in C++ with hand-written backwards, through ATen's thread pool
-(OpenMP). Built with torch.utils.cpp_extension on first use
-(or ahead of time by ``python -m panorecon.splat.rasterize.build``) into
-``$PANORECON_CACHE/torch_extensions/<checkout>``
-(default ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the hot
-compositing functions are built three times (x86-64-v4 with AVX-512, x86-64-v3 with AVX2 and FMA, and baseline x86-64)
-and the loader picks by
-CPU. csrc/peak_cpu.cpp holds the FMA loop and copy that measure the machine's limits for the roofline benchmark.
+Gaussians (csrc/sh_cpu.cpp, parallel over Gaussians) and tiled compositing (csrc/rasterize_cpu.cpp, parallel over
+tiles) in C++ with hand-written backwards, through ATen's thread pool (OpenMP); csrc/densify_cpu.cpp accumulates the
+trainer's densification statistic. Built with torch.utils.cpp_extension on first use (or ahead of time by
+``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions/<checkout>`` (default
+~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the hot compositing functions
+are built three times (x86-64-v4 with AVX-512, x86-64-v3 with AVX2 and FMA, and baseline x86-64) and the loader picks
+by CPU. csrc/peak_cpu.cpp holds the FMA loop and copy that measure the machine's limits for the roofline benchmark.
 Compositing is float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
 """
 
@@ -27,7 +25,15 @@ from .sh import check_sh, split_sh
 log = logging.getLogger("panorecon.splat")
 _SOURCES = [
     Path(__file__).parent / "csrc" / f
-    for f in ("module.cpp", "project_cpu.cpp", "sh_cpu.cpp", "rasterize_cpu.cpp", "ssim_cpu.cpp", "peak_cpu.cpp")
+    for f in (
+        "module.cpp",
+        "project_cpu.cpp",
+        "sh_cpu.cpp",
+        "rasterize_cpu.cpp",
+        "ssim_cpu.cpp",
+        "densify_cpu.cpp",
+        "peak_cpu.cpp",
+    )
 ]
 _module = None
 _error: str | None = None
@@ -251,3 +257,13 @@ def composite(
     )
     contrib = {"weight_sum": w_sum, "weight_max": w_max, "trans_max": t_max} if return_contrib else None
     return image, alpha, depth, contrib
+
+
+def accumulate_screen_grads(grad_sum, count, g_means2d, radii, width: int, height: int) -> None:
+    """DefaultStrategy's statistic in C++, in place: ``grad_sum[n] +=`` the sum over the cameras c with
+    ``radii[c, n] > 0`` of ``|g_means2d[c, n] * (width / 2, height / 2)|`` and ``count[n] +=`` their number.
+    grad_sum, count [N] float32 contiguous (updated); g_means2d [C, N, 2]; radii [C, N]."""
+    if not (grad_sum.dtype == count.dtype == torch.float32 and grad_sum.is_contiguous() and count.is_contiguous()):
+        raise ValueError("accumulate_screen_grads: grad_sum and count must be contiguous float32 tensors")
+    g = g_means2d.detach().float().contiguous()
+    load().accumulate_screen_grads(grad_sum, count, g, radii.to(torch.int32).contiguous(), width / 2, height / 2)
