@@ -79,12 +79,62 @@ struct Coeffs {
   }
 };
 
+#if defined(__x86_64__) && defined(__GNUC__)
+// AVX-512, AVX2 and baseline builds, none of which contracts a multiply and an add: each rounds as the general loop
+#define SH_CLONES \
+  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default"), optimize("fp-contract=off")))
+#else
+#define SH_CLONES
+#endif
+
+// Degree 0, the trainer's default (the colour reads neither the view direction nor the higher bands): camera c's
+// colours of Gaussians [b, e), 0.5 + C0 dc clamped at 0, and 0 where culled, selected without a branch so that the
+// loop vectorizes, in clones of its own (the general loop, a lambda of at::parallel_for, ran in the baseline build and
+// branched per pair). The same arithmetic as the general loop.
+template <typename T>
+SH_CLONES void forward_dc(const T* __restrict dc, int64_t sd, const int32_t* __restrict rad, int64_t b, int64_t e,
+                          T* __restrict out) {
+  for (int64_t n = b; n < e; ++n) {
+    const bool seen = rad[n] > 0;
+    for (int ch = 0; ch < 3; ++ch) {
+      T s = T(0.5);
+      s += T(C0) * dc[n * sd + ch];
+      out[n * 3 + ch] = seen && s > 0 ? s : T(0);
+    }
+  }
+}
+
+// Degree 0's gradient of the DC band for Gaussians [b, e): C0 times the colour gradients of the pairs that see it
+// with a colour sum >= 0, summed over the cameras in order from 0 onto zeros (as the general loop adds them).
+template <typename T>
+SH_CLONES void backward_dc(const T* __restrict dc, int64_t sd, const int32_t* __restrict rad,
+                           const T* __restrict g_colors, int64_t C, int64_t N, int64_t b, int64_t e, T* __restrict g_dc) {
+  for (int64_t i = b * 3; i < e * 3; ++i) g_dc[i] = T(0);
+  for (int64_t c = 0; c < C; ++c)
+    for (int64_t n = b; n < e; ++n) {
+      if (rad[c * N + n] <= 0) continue;  // most pairs of a narrow view: a branch that skips them is well predicted
+      for (int ch = 0; ch < 3; ++ch) {
+        T s = T(0.5);
+        s += T(C0) * dc[n * sd + ch];
+        const T graw = s >= 0 ? g_colors[(c * N + n) * 3 + ch] : T(0);
+        g_dc[n * 3 + ch] += T(C0) * graw;
+      }
+    }
+}
+
 template <typename T>
 void forward_impl(Coeffs<T> co, const T* means, const T* campos, const int32_t* rad, int64_t C, int64_t N,
                   int degree, T* colors) {
   const int k_used = (degree + 1) * (degree + 1);
+  if (degree == 0) {
+    for (int64_t c = 0; c < C; ++c)
+      at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
+        forward_dc(co.dc, co.sd, rad + c * N, b0, e0, colors + c * N * 3);
+      });
+    return;
+  }
   at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
-    T b[16], v[3], u[3] = {0, 0, 0};  // degree 0 reads no direction: u stays 0
+    T b[16], v[3], u[3];
     for (int64_t n = b0; n < e0; ++n) {
       for (int64_t c = 0; c < C; ++c) {
         T* out = colors + (c * N + n) * 3;
@@ -103,21 +153,28 @@ void forward_impl(Coeffs<T> co, const T* means, const T* campos, const int32_t* 
 
 // Writes every row of g_dc [N,1,3], g_rest [N,K-1,3] (contiguous) and, above degree 0, g_means [N,3]: each
 // Gaussian's rows are zeroed and summed over its cameras by one thread (no zero-fill of the outputs first: at degree 0
-// and 330k Gaussians that was ~0.3 ms a step; degree 0's colour ignores the view direction, so g_means is not read).
+// and 330k Gaussians that was ~0.3 ms a step). Degree 0 (backward_dc) writes g_dc alone: its colour ignores the view
+// direction and the higher bands.
 template <typename T>
 void backward_impl(Coeffs<T> co, const T* means, const T* campos, const int32_t* rad, const T* g_colors,
                    int64_t C, int64_t N, int64_t K, int degree, T* g_dc, T* g_rest, T* g_means) {
   const int k_used = (degree + 1) * (degree + 1);
+  if (degree == 0) {  // g_rest is [N, 0, 3] and g_means [0, 3]
+    at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
+      backward_dc(co.dc, co.sd, rad, g_colors, C, N, b0, e0, g_dc);
+    });
+    return;
+  }
   at::parallel_for(0, N, 4096, [&](int64_t b0, int64_t e0) {
-    T b[16], d[16][3], v[3], u[3] = {0, 0, 0};  // degree 0 reads no direction: u stays 0
+    T b[16], d[16][3], v[3], u[3];
     for (int64_t n = b0; n < e0; ++n) {
       std::fill(g_dc + n * 3, g_dc + n * 3 + 3, T(0));
       std::fill(g_rest + n * (K - 1) * 3, g_rest + (n + 1) * (K - 1) * 3, T(0));
-      if (degree > 0) std::fill(g_means + n * 3, g_means + n * 3 + 3, T(0));
+      std::fill(g_means + n * 3, g_means + n * 3 + 3, T(0));
       for (int64_t c = 0; c < C; ++c) {
         if (rad[c * N + n] <= 0) continue;
-        const T norm = degree > 0 ? direction(means + n * 3, campos + c * 3, v, u) : T(1);
-        sh_basis<T>(degree, u[0], u[1], u[2], b, degree > 0 ? d : nullptr);
+        const T norm = direction(means + n * 3, campos + c * 3, v, u);
+        sh_basis<T>(degree, u[0], u[1], u[2], b, d);
         T graw[3];
         for (int ch = 0; ch < 3; ++ch) {  // clamp at 0 passes the gradient where the sum is >= 0
           T s = T(0.5);
@@ -132,10 +189,8 @@ void backward_impl(Coeffs<T> co, const T* means, const T* campos, const int32_t*
             gco[ch] += b[k] * graw[ch];
             gb += co(n, k, ch) * graw[ch];
           }
-          if (degree > 0)
-            for (int j = 0; j < 3; ++j) gu[j] += gb * d[k][j];
+          for (int j = 0; j < 3; ++j) gu[j] += gb * d[k][j];
         }
-        if (degree == 0) continue;
         // u = v / max(|v|, 1e-12): the projection (I - u u^T) / |v| above the clamp, 1 / 1e-12 below it
         const bool clamped = !(norm > T(1e-12));
         const T dot = clamped ? T(0) : u[0] * gu[0] + u[1] * gu[1] + u[2] * gu[2];
