@@ -1,10 +1,12 @@
 """``panorecon bench``: the benchmark CI job.
 
 Runs the tiny ablation suite (fresh cache, so everything is computed), the fusion and the rasterizer
-micro-benchmarks and the training step's roofline (``bench_roofline``; small: 128², 20k Gaussians), and compares
-them with a stored baseline (``benchmarks/baseline.json``):
+micro-benchmarks, the fused SSIM and SH kernels against their references (``bench_fused``) and the training step's
+roofline (``bench_roofline``; small: 128², 20k Gaussians), and compares them with a stored baseline
+(``benchmarks/baseline.json``):
 - correctness regressions fail (exit 1): an error metric worse than baseline x ``ERROR_SLACK`` (+ a floor), a
-  PSNR more than ``PSNR_SLACK_DB`` below it, the cpu rasterizer drifting from the torch reference, a NaN;
+  PSNR more than ``PSNR_SLACK_DB`` below it, the cpu rasterizer or the fused kernels drifting from the torch
+  references, a NaN;
 - slowdowns warn: a speed ratio measured in the same run (method / reference) below baseline / ``SLOWDOWN_RATIO``,
   or the compositing's distance from the machine's FMA peak (both measured in the same run) above baseline x
   ``SLOWDOWN_RATIO``.
@@ -24,13 +26,14 @@ from ..io import write_json
 ERROR_SLACK, ERROR_FLOOR = 1.5, 0.005
 PSNR_SLACK_DB = 1.5
 RASTER_MAX_DIFF = {"image": 1e-4, "grad_means": 1e-2}
+FUSED_MAX_DIFF = {"ssim": 1e-6, "sh": 1e-6}  # values and gradients, fused against the PyTorch reference
 SLOWDOWN_RATIO = 1.5
 
 
 def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
     """Run the suite (its stages on ``device``) and both micro-benchmarks (CPU) -> the numbers the baseline
     stores."""
-    from . import bench_fusion, bench_rasterizer, bench_roofline
+    from . import bench_fused, bench_fusion, bench_rasterizer, bench_roofline
     from .ablate import run_suite
     from .suite import load_suite
 
@@ -41,6 +44,7 @@ def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
     flag = ["--quick"] if quick else []
     fusion = bench_fusion.main(flag)["results"][0]
     raster = bench_rasterizer.main(flag)
+    fused = bench_fused.measure(quick)
     roof = bench_roofline.roofline(128, 20_000, 3) if quick else bench_roofline.roofline()
     stage = {r["stage"]: r for r in roof["stages"]}
     trained = frame[frame["device"].notna()] if "device" in frame else frame.iloc[:0]
@@ -64,6 +68,7 @@ def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
             "max_abs_difference": raster["max_abs_difference"],
             "speedup_cpu_vs_torch": raster["results"][0]["speedup_cpu_vs_torch"],
         },
+        "fused": {k: v for k, v in fused.items() if k == "status" or "speedup" in k or "difference" in k},
         "roofline": {
             "size": roof["size"],
             "gaussians": roof["gaussians"],
@@ -106,14 +111,25 @@ def compare(current: dict, baseline: dict) -> tuple[list[str], list[str]]:
         d = current["rasterizer"]["max_abs_difference"][k]
         if not d <= tol:
             fails.append(f"rasterizer cpu vs torch: max |difference| of {k} {d:.2e} > {tol:.0e}")
-    for name, cur, base in (
+    ratios = [
         ("fusion speedup vs the MoGe-style reference", f["speedup_vs_reference"], bf["speedup_vs_reference"]),
         (
             "rasterizer cpu vs torch speedup",
             current["rasterizer"]["speedup_cpu_vs_torch"],
             baseline["rasterizer"]["speedup_cpu_vs_torch"],
         ),
-    ):
+    ]
+    fused, base_fused = current.get("fused", {}), baseline.get("fused", {})
+    for kernel, tol in FUSED_MAX_DIFF.items():
+        d = fused.get(f"{kernel}_max_abs_difference")
+        if d is not None and not d <= tol:
+            fails.append(f"fused {kernel} vs its PyTorch reference: max |difference| {d:.2e} > {tol:.0e}")
+        key = f"{kernel}_speedup_vs_torch"
+        if key in fused and key in base_fused:
+            ratios.append((f"fused {kernel} vs torch speedup", fused[key], base_fused[key]))
+        elif key in fused:
+            warns.append(f"fused {kernel} speedup has no baseline (run with --update-baseline)")
+    for name, cur, base in ratios:
         if cur < base / SLOWDOWN_RATIO:
             warns.append(f"{name}: {cur:.2f}x < baseline {base:.2f}x / {SLOWDOWN_RATIO}")
     if "roofline" in baseline:

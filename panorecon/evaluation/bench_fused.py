@@ -1,0 +1,124 @@
+"""The cpu backend's training-step kernels beside the compositor against their PyTorch references, measured in the
+same run, as speed ratios: SSIM of a render against a target (``losses.ssim``, fused in C++, against
+``losses.ssim_separable``), forward + backward, and the SH colours at degree 0, the trainer's
+(``cpu_backend.sh_colors`` against ``sh_colors_reference`` masked to the visible pairs), forward + backward, with a
+tenth of the Gaussians visible. Median ms over repeats (the two called alternately, after warm-up calls), the ratio
+reference / fused, and the largest |difference| of values and gradients.
+
+    python -m panorecon.evaluation.bench_fused [--quick] [--repeats N] [--out result.json]
+
+``--quick``: 128² x 3 and 20k Gaussians (CI); else 256² x 3 and 200k.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import torch
+
+from ..io import peak_rss_mb
+from .environment import emit, environment
+
+
+def _paired_ms(fused, reference, repeats: int) -> tuple[float, float]:
+    """Median ms of each callable, after two warm-up calls each, called alternately (fused, reference, reference,
+    fused, ...) so that the machine's drift falls on both alike."""
+    for fn in (fused, reference, fused, reference):
+        fn()
+    times = {fused: [], reference: []}
+    for r in range(repeats):
+        for fn in (fused, reference) if r % 2 == 0 else (reference, fused):
+            t = time.perf_counter()
+            fn()
+            times[fn].append(1000 * (time.perf_counter() - t))
+    return statistics.median(times[fused]), statistics.median(times[reference])
+
+
+def ssim_rows(size: int, repeats: int) -> dict:
+    """SSIM forward + backward of a [1, size, size, 3] render against a target: fused and separable PyTorch."""
+    from panorecon.splat.losses import ssim, ssim_separable
+
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(1, size, size, 3, generator=g)
+    render = (target + 0.1 * torch.randn(1, size, size, 3, generator=g)).clamp(0, 1)
+    out = {}
+
+    def run(fn, key):
+        leaf = render.clone().requires_grad_(True)
+        value = fn(leaf, target)
+        value.backward()
+        out[key] = (value.detach(), leaf.grad)
+
+    fused_ms, reference_ms = _paired_ms(lambda: run(ssim, "fused"), lambda: run(ssim_separable, "reference"), repeats)
+    return {
+        "ssim_ms": fused_ms,
+        "ssim_reference_ms": reference_ms,
+        "ssim_speedup_vs_torch": reference_ms / fused_ms,
+        "ssim_max_abs_difference": max(float((a - b).abs().max()) for a, b in zip(out["fused"], out["reference"])),
+    }
+
+
+def sh_rows(n: int, repeats: int) -> dict:
+    """SH colours at degree 0 of n Gaussians (a tenth visible) from one camera, forward + backward: the C++ kernel
+    and the reference on every Gaussian, masked."""
+    from panorecon.splat.rasterize import cpu_backend
+    from panorecon.splat.rasterize.sh import sh_colors_reference
+
+    g = torch.Generator().manual_seed(1)
+    sh0, shN = torch.randn(n, 1, 3, generator=g), torch.zeros(n, 15, 3)
+    means, campos = torch.randn(n, 3, generator=g), torch.zeros(1, 3)
+    radii = ((torch.rand(1, n, generator=g) < 0.1) * 3).to(torch.int32)
+    upstream = torch.randn(1, n, 3, generator=g)
+    out = {}
+
+    def run(key):
+        dc = sh0.clone().requires_grad_(True)
+        if key == "fused":
+            colors = cpu_backend.sh_colors(0, (dc, shN), means, campos, radii)
+        else:
+            colors = sh_colors_reference(0, torch.cat([dc, shN], 1), means, campos) * (radii[..., None] > 0)
+        (colors * upstream).sum().backward()
+        out[key] = (colors.detach(), dc.grad)
+
+    fused_ms, reference_ms = _paired_ms(lambda: run("fused"), lambda: run("reference"), repeats)
+    return {
+        "sh_ms": fused_ms,
+        "sh_reference_ms": reference_ms,
+        "sh_speedup_vs_torch": reference_ms / fused_ms,
+        "sh_max_abs_difference": max(float((a - b).abs().max()) for a, b in zip(out["fused"], out["reference"])),
+    }
+
+
+def measure(quick: bool = True, repeats: int = 20) -> dict:
+    """The rows above at CI's sizes (``quick``) or the trainer's (256², 200k Gaussians)."""
+    from panorecon.splat.rasterize import cpu_backend
+
+    if not cpu_backend.available():
+        return {"status": "n/a: the C++ cpu backend could not be built here"}
+    size, n = (128, 20_000) if quick else (256, 200_000)
+    return {"size": size, "gaussians": n, "repeats": repeats, **ssim_rows(size, repeats), **sh_rows(n, repeats)}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="128² and 20k Gaussians (CI)")
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    result = measure(args.quick, args.repeats)
+    return emit(
+        {
+            "benchmark": "fused SSIM and SH against their PyTorch references",
+            **environment(),
+            "threads": torch.get_num_threads(),
+            **result,
+            "peak_rss_mb": peak_rss_mb(),
+        },
+        args.out,
+    )
+
+
+if __name__ == "__main__":
+    main()
