@@ -25,15 +25,13 @@ import argparse
 import json
 import statistics
 import time
-from pathlib import Path
 
 
 def main(argv=None) -> dict:
     import torch
 
-    from panorecon.evaluation.bench_rasterizer import scene
+    from panorecon.evaluation.bench_rasterizer import scene, trained_views
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-    from panorecon.splat.ply import load_ply
     from panorecon.splat.rasterize import cpu_backend
     from panorecon.splat.rasterize.sh import C0
 
@@ -54,19 +52,8 @@ def main(argv=None) -> dict:
     clock = time.process_time if args.threads == 1 else time.perf_counter
     ext = cpu_backend.load()
     if args.run:
-        model = load_ply(Path(args.run) / "point_cloud.ply")
-        cams = json.loads((Path(args.run) / "cameras.json").read_text())["pseudo-label"]
-        cams = [cams[round(i * len(cams) / args.views)] for i in range(args.views)]
-        size = cams[0]["width"]
-        with torch.no_grad():
-            quats = model.quats / model.quats.norm(dim=-1, keepdim=True)
-            means, quats, scales = (t.contiguous() for t in (model.means, quats, model.scales()))
-            opac = model.opacities().contiguous()
-            colors = (model.sh0[:, 0] * C0 + 0.5).clamp_min(0).contiguous()
-        views = [
-            (torch.tensor(c["viewmat"], dtype=torch.float32)[None], torch.tensor(c["K"], dtype=torch.float32)[None])
-            for c in cams
-        ]
+        means, quats, scales, opac, sh0, views, size = trained_views(args.run, args.views)
+        colors = (sh0[:, 0] * C0 + 0.5).clamp_min(0).contiguous()
     else:
         size = args.size
         K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]

@@ -25,32 +25,23 @@ import statistics
 import time
 from pathlib import Path
 
-SOURCES = (
-    "module.cpp",
-    "project_cpu.cpp",
-    "sh_cpu.cpp",
-    "rasterize_cpu.cpp",
-    "ssim_cpu.cpp",
-    "densify_cpu.cpp",
-    "peak_cpu.cpp",
-)
-
 
 def build(csrc: Path, name: str):
-    """The extension of the C++ sources in ``csrc`` under the module name ``name``, in the panorecon cache."""
+    """The extension of the C++ sources in ``csrc`` (those of ``cpu_backend.SOURCE_FILES`` it has) under the module
+    name ``name``, with the backend's flags, in the panorecon cache."""
     from torch.utils.cpp_extension import load
 
-    from panorecon.splat.rasterize.cpu_backend import build_dir
+    from panorecon.splat.rasterize import cpu_backend
 
-    directory = build_dir().parent / "kernel_ab" / name
+    directory = cpu_backend.build_dir().parent / "kernel_ab" / name
     directory.mkdir(parents=True, exist_ok=True)
-    files = [str(csrc / f) for f in SOURCES if (csrc / f).exists()]
+    files = [str(csrc / f) for f in cpu_backend.SOURCE_FILES if (csrc / f).exists()]
     return load(
         name=name,
         sources=files,
         build_directory=str(directory),
-        extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"],
-        extra_ldflags=["-fopenmp"],
+        extra_cflags=cpu_backend.CFLAGS,
+        extra_ldflags=cpu_backend.LDFLAGS,
     )
 
 
@@ -58,30 +49,18 @@ def inputs(run: str | None, views: int, gaussians: int):
     """(means, quats, scales, opacities, sh0, [(viewmat [1,4,4], K [1,3,3])], size)."""
     import torch
 
-    from panorecon.evaluation.bench_rasterizer import scene
+    from panorecon.evaluation.bench_rasterizer import scene, trained_views
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-    from panorecon.splat.ply import load_ply
     from panorecon.splat.rasterize.sh import C0
 
-    if run is None:
-        size = 256
-        K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
-        cams = [(torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None], K)]
-        means, quats, scales, opac, colors = scene(gaussians)
-        sh0 = ((colors - 0.5) / C0)[:, None].contiguous()
-        return means, quats, scales, opac, sh0, cams, size
-    model = load_ply(Path(run) / "point_cloud.ply")
-    cameras = json.loads((Path(run) / "cameras.json").read_text())["pseudo-label"]
-    cameras = [cameras[round(i * len(cameras) / views)] for i in range(views)]
-    with torch.no_grad():
-        quats = model.quats / model.quats.norm(dim=-1, keepdim=True)
-        means, quats, scales = (t.contiguous() for t in (model.means, quats, model.scales()))
-        opac, sh0 = model.opacities().contiguous(), model.sh0.detach().contiguous()
-    cams = [
-        (torch.tensor(c["viewmat"], dtype=torch.float32)[None], torch.tensor(c["K"], dtype=torch.float32)[None])
-        for c in cameras
-    ]
-    return means, quats, scales, opac, sh0, cams, cameras[0]["width"]
+    if run is not None:
+        return trained_views(run, views)
+    size = 256
+    K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
+    cams = [(torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None], K)]
+    means, quats, scales, opac, colors = scene(gaussians)
+    sh0 = ((colors - 0.5) / C0)[:, None].contiguous()
+    return means, quats, scales, opac, sh0, cams, size
 
 
 def observe_torch(grad_sum, count, g, radii, width, height):

@@ -44,6 +44,29 @@ def scene(n: int, seed: int = 0):
     return means, quats, scales, opac, colors
 
 
+def trained_views(run, views: int):
+    """A ``panorecon train`` output's model (its point_cloud.ply) and ``views`` of its pseudo-label cameras spread
+    over them (cameras.json): means, unit quats, linear scales, opacities [N], sh0 [N,1,3], [(viewmat [1,4,4],
+    K [1,3,3])] and the views' size in pixels (eval/compositor_builds.py's and eval/kernel_ab.py's ``--run``)."""
+    import json
+    from pathlib import Path
+
+    from panorecon.splat.ply import load_ply
+
+    model = load_ply(Path(run) / "point_cloud.ply")
+    cameras = json.loads((Path(run) / "cameras.json").read_text())["pseudo-label"]
+    cameras = [cameras[round(i * len(cameras) / views)] for i in range(views)]
+    with torch.no_grad():
+        quats = model.quats / model.quats.norm(dim=-1, keepdim=True)
+        means, quats, scales = (t.contiguous() for t in (model.means, quats, model.scales()))
+        opacities, sh0 = model.opacities().contiguous(), model.sh0.detach().contiguous()
+    cams = [
+        (torch.tensor(c["viewmat"], dtype=torch.float32)[None], torch.tensor(c["K"], dtype=torch.float32)[None])
+        for c in cameras
+    ]
+    return means, quats, scales, opacities, sh0, cams, cameras[0]["width"]
+
+
 def fwd_bwd(backend: str, size: int, n: int) -> float:
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
     from panorecon.splat.rasterize import rasterize

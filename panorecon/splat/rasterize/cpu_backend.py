@@ -23,18 +23,18 @@ import torch
 from .sh import check_sh, split_sh
 
 log = logging.getLogger("panorecon.splat")
-_SOURCES = [
-    Path(__file__).parent / "csrc" / f
-    for f in (
-        "module.cpp",
-        "project_cpu.cpp",
-        "sh_cpu.cpp",
-        "rasterize_cpu.cpp",
-        "ssim_cpu.cpp",
-        "densify_cpu.cpp",
-        "peak_cpu.cpp",
-    )
-]
+# the extension's C++ files in csrc/ and its compiler and linker flags (also eval/kernel_ab.py's, for another checkout)
+SOURCE_FILES = (
+    "module.cpp",
+    "project_cpu.cpp",
+    "sh_cpu.cpp",
+    "rasterize_cpu.cpp",
+    "ssim_cpu.cpp",
+    "densify_cpu.cpp",
+    "peak_cpu.cpp",
+)
+CFLAGS, LDFLAGS = ["-O3", "-fopenmp", "-Wno-psabi"], ["-fopenmp"]
+_SOURCES = [Path(__file__).parent / "csrc" / f for f in SOURCE_FILES]
 _module = None
 _error: str | None = None
 
@@ -78,8 +78,8 @@ def load(verbose: bool = False):
                 name="panorecon_rasterize_cpu",
                 sources=[str(p) for p in _SOURCES],
                 build_directory=str(directory),
-                extra_cflags=["-O3", "-fopenmp", "-Wno-psabi"],
-                extra_ldflags=["-fopenmp"],
+                extra_cflags=CFLAGS,
+                extra_ldflags=LDFLAGS,
                 verbose=verbose,
             )
     except Exception as e:  # a missing compiler or headers: fall back to the reference
