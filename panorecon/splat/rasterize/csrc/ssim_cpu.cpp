@@ -30,31 +30,28 @@ constexpr float C1 = 0.01f * 0.01f, C2 = 0.03f * 0.03f;
 
 typedef float v16f __attribute__((vector_size(64)));  // 16 floats: one AVX-512 register, two AVX2, four SSE
 
+// out[j .. j + 16 B) = sum over taps t (in order, from 0) of w[t] in[t][j ..]: B sums of 16 columns in registers, in
+// flight together (one sum's taps are a chain of dependent adds).
+template <int B>
+__attribute__((always_inline)) inline void weighted_block(const float* const* in, const float* w, int64_t taps,
+                                                          int64_t j, float* __restrict out) {
+  v16f acc[B] = {};
+  for (int64_t t = 0; t < taps; ++t)
+    for (int u = 0; u < B; ++u) {
+      v16f v;
+      std::memcpy(&v, in[t] + j + 16 * u, sizeof v);  // unaligned load
+      acc[u] += w[t] * v;
+    }
+  std::memcpy(out + j, acc, sizeof acc);
+}
+
 // out[j] = sum over taps t (in order, from 0) of w[t] in[t][j], for j < n: a vertical blur tap by tap, 64 columns at
 // a time in registers instead of a pass over out per tap (the same sums, bit for bit, without contraction).
 __attribute__((always_inline)) inline void weighted_rows(const float* const* in, const float* w, int64_t taps,
                                                          int64_t n, float* __restrict out) {
-  constexpr int B = 4;  // independent sums in flight: one sum's taps are a chain of dependent adds
   int64_t j = 0;
-  for (; j + 16 * B <= n; j += 16 * B) {
-    v16f acc[B] = {};
-    for (int64_t t = 0; t < taps; ++t)
-      for (int u = 0; u < B; ++u) {
-        v16f v;
-        std::memcpy(&v, in[t] + j + 16 * u, sizeof v);  // unaligned load
-        acc[u] += w[t] * v;
-      }
-    std::memcpy(out + j, acc, sizeof acc);
-  }
-  for (; j + 16 <= n; j += 16) {
-    v16f acc = {};
-    for (int64_t t = 0; t < taps; ++t) {
-      v16f v;
-      std::memcpy(&v, in[t] + j, sizeof v);
-      acc += w[t] * v;
-    }
-    std::memcpy(out + j, &acc, sizeof acc);
-  }
+  for (; j + 64 <= n; j += 64) weighted_block<4>(in, w, taps, j, out);
+  for (; j + 16 <= n; j += 16) weighted_block<1>(in, w, taps, j, out);
   for (; j < n; ++j) {
     float acc = 0.f;
     for (int64_t t = 0; t < taps; ++t) acc += w[t] * in[t][j];
@@ -63,8 +60,7 @@ __attribute__((always_inline)) inline void weighted_rows(const float* const* in,
 }
 
 // out[j] = sum_t g[t] in[j + t] for j < n: one row of the 'valid' blur (its multiply-adds contracted where the clone
-// has FMA, as before weighted_rows).
-// shifted: room for K pointers.
+// has FMA, as before weighted_rows); shifted: room for K pointers.
 SSIM_CLONES void blur_row(const float* in, const float* g, int64_t K, int64_t n, float* out, const float** shifted) {
   for (int64_t t = 0; t < K; ++t) shifted[t] = in + t;
   weighted_rows(shifted, g, K, n, out);
