@@ -88,9 +88,9 @@ struct Coeffs {
 #endif
 
 // Degree 0, the trainer's default (the colour reads neither the view direction nor the higher bands): camera c's
-// colours of Gaussians [b, e), 0.5 + C0 dc clamped at 0, and 0 where culled, selected without a branch so that the
-// loop vectorizes, in clones of its own (the general loop, a lambda of at::parallel_for, ran in the baseline build and
-// branched per pair). The same arithmetic as the general loop.
+// colours of Gaussians [b, e), 0.5 + C0 dc clamped at 0, and 0 where culled, in clones of its own (the general loop, a
+// lambda of at::parallel_for, ran in the baseline build with its basis and coefficient lookups per pair). The same
+// arithmetic as the general loop. GCC keeps this loop scalar (the row stride sd is a run-time value).
 template <typename T>
 SH_CLONES void forward_dc(const T* __restrict dc, int64_t sd, const int32_t* __restrict rad, int64_t b, int64_t e,
                           T* __restrict out) {
