@@ -148,6 +148,36 @@ def test_partial_blocks_and_saturated_pixels_agree():
         torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
 
 
+@pytest.mark.parametrize("opacity", [0.1, 0.3])
+def test_long_lists_stop_inside_a_later_batch(opacity):
+    """The kernels walk a block's list in batches of entries (alphas first, then the blend; the backward batch by
+    batch from the back). 300 wide, translucent splats over every pixel: with opacity 0.1 a pixel's T reaches 1e-4
+    only after ~90 entries, with 0.3 after ~26 (random alphas put the stops at every offset within a batch), so
+    lists run over many batches and stop inside one. Values and gradients against the reference."""
+    from panorecon.splat.rasterize.torch_backend import rasterize_tiles
+
+    g = torch.Generator().manual_seed(11)
+    n, width, height = 300, 29, 19
+    means2d = (torch.rand(1, n, 2, generator=g) * torch.tensor([width, height])).contiguous()
+    conics = (torch.rand(1, n, 1, generator=g) * 0.004 + 0.001) * torch.tensor([1.0, 0.0, 1.0])  # sigma 16-32 px
+    radii = torch.full((1, n), 60, dtype=torch.int32)
+    opac = torch.full((n,), opacity)
+    colors = torch.rand(1, n, 3, generator=g)
+    depths = torch.rand(1, n, generator=g) + 1
+    out = {}
+    for name, fn in (("torch", rasterize_tiles), ("cpu", cpu_backend.composite)):
+        leaves = [t.clone().requires_grad_(True) for t in (means2d, conics, colors, opac, depths)]
+        img, alpha, depth, _ = fn(*leaves[:5], radii, width, height)
+        ((img * torch.linspace(0.5, 1.5, 3)).sum() + alpha.sum() + 0.1 * depth.sum()).backward()
+        out[name] = (img.detach(), alpha.detach(), [t.grad for t in leaves])
+    assert (out["torch"][1] > 1 - 2e-4).float().mean() > 0.9, "most pixels should stop before their list ends"
+    torch.testing.assert_close(out["cpu"][0], out["torch"][0], atol=ATOL_VALUE, rtol=RTOL)
+    torch.testing.assert_close(out["cpu"][1], out["torch"][1], atol=ATOL_VALUE, rtol=RTOL)
+    for name, a, b in zip(("means2d", "conics", "colors", "opacities", "depths"), out["cpu"][2], out["torch"][2]):
+        scale = b.abs().max().clamp_min(1.0)
+        torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_needles_at_every_angle_keep_every_pixel_they_reach(seed):
     """The kernel's 4x4-block lists keep a Gaussian only where its ellipse sigma <= ln(255 o) reaches a pixel centre

@@ -433,11 +433,37 @@ struct BlockOut {  // per lane: transmittance, rgb, accumulated z, entries of th
 // Composites one block's list front to back, all lanes at once; a lane stops before the Gaussian that would take
 // its T to <= T_MIN, lanes outside the image start stopped. With CONTRIB, adds this block's weight sum, and maxes
 // its weight max and max T, into contrib[3 l .. 3 l + 2] for the tile's Gaussian l (the tile's own buffer).
+// The list is walked in batches of ENTRY_BATCH entries: first every entry's alpha in every lane (independent of one
+// another), then the blend, whose transmittance carries from entry to entry. In one pass, each entry's alpha (a
+// quadratic form and an exp, ~60 cycles of latency) hung off the chain, and only two entries fitted in the core's
+// reorder window: the loop ran at a third of its instruction throughput (docs/benchmarks.md). Same arithmetic, same bits.
+constexpr int64_t ENTRY_BATCH = 32;
+
+// alpha of list entries [k0, k0 + nb) in every lane, A[j] for entry k0 + j: min(0.99, o exp(-sigma)) where
+// sigma >= 0 and it is >= 1/255, else 0 (a NaN sigma gives 0); with WITH_VIS also exp(-sigma) itself, in E[j]
+template <bool WITH_VIS>
+PR_INLINE void batch_alphas(const TileGaussians& G, const int32_t* list, int64_t k0, int64_t nb, const v8f* px,
+                            const v8f* py, v8f (*A)[VECS], v8f (*E)[VECS]) {
+  const v8f zero = {};
+  for (int64_t j = 0; j < nb; ++j) {
+    const int64_t l = list[k0 + j];
+    const float mx = G.mx[l], my = G.my[l], qa = G.qa[l], qb = G.qb[l], qc = G.qc[l], o = G.op[l];
+    for (int v = 0; v < VECS; ++v) {
+      const v8f dx = px[v] - mx, dy = py[v] - my;
+      const v8f sigma = 0.5f * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
+      const v8f vis = exp_neg(sigma), a = vmin(zero + ALPHA_MAX, o * vis);
+      A[j][v] = select((sigma >= 0.f) & (a >= ALPHA_MIN), a, zero);
+      if constexpr (WITH_VIS) E[j][v] = vis;
+    }
+  }
+}
+
 template <bool CONTRIB>
 PR_CLONES void composite_block(const TileGaussians& G, const int32_t* list, int64_t n_l, int64_t i0, int64_t i1,
                                int64_t j0, int64_t j1, BlockOut& out, float* contrib) {
   v8f px[VECS], py[VECS], T[VECS], r[VECS], g[VECS], b[VECS], d[VECS], end[VECS];
   v8i live[VECS];
+  v8f A[ENTRY_BATCH][VECS];
   lane_centres(i0, j0, px, py);
   const v8f zero = {};
   for (int v = 0; v < VECS; ++v) {
@@ -445,43 +471,41 @@ PR_CLONES void composite_block(const TileGaussians& G, const int32_t* list, int6
     r[v] = g[v] = b[v] = d[v] = end[v] = zero;
     live[v] = (px[v] < (float)j1) & (py[v] < (float)i1);
   }
-  for (int64_t k = 0; k < n_l; ++k) {
-    const int64_t l = list[k];
-    const float mx = G.mx[l], my = G.my[l], qa = G.qa[l], qb = G.qb[l], qc = G.qc[l], o = G.op[l];
-    const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], k1 = (float)(k + 1);
-    v8f w_sum = zero, w_max = zero, t_max = zero;
-    v8i alive = {};
-    v8f a[VECS];
-    v8i use[VECS];
-    // No early `continue` when no lane uses the entry: its test was a mispredicted branch (perf), dearer than the
-    // masked updates below, which then change nothing.
-    for (int v = 0; v < VECS; ++v) {
-      const v8f dx = px[v] - mx, dy = py[v] - my;
-      const v8f sigma = 0.5f * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
-      a[v] = vmin(zero + ALPHA_MAX, o * exp_neg(sigma));
-      use[v] = live[v] & (sigma >= 0.f) & (a[v] >= ALPHA_MIN);
+  bool any_live = true;
+  for (int64_t k0 = 0; k0 < n_l && any_live; k0 += ENTRY_BATCH) {
+    const int64_t nb = std::min(ENTRY_BATCH, n_l - k0);
+    batch_alphas<false>(G, list, k0, nb, px, py, A, nullptr);
+    for (int64_t j = 0; j < nb; ++j) {
+      const int64_t k = k0 + j, l = list[k];
+      const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], k1 = (float)(k + 1);
+      v8f w_sum = zero, w_max = zero, t_max = zero;
+      v8i alive = {};
+      // No early `continue` when no lane uses the entry: its test was a mispredicted branch (perf), dearer than the
+      // masked updates below, which then change nothing.
+      for (int v = 0; v < VECS; ++v) {
+        const v8f a = A[j][v];
+        const v8i use = live[v] & (a >= ALPHA_MIN);
+        const v8f nextT = T[v] * (1.f - a);
+        const v8i stop = use & (nextT <= T_MIN);
+        const v8i add = use & ~stop;
+        const v8f w = select(add, a * T[v], zero);
+        t_max = vmax(t_max, select(add, T[v], zero));
+        r[v] += w * cr; g[v] += w * cg; b[v] += w * cb; d[v] += w * cz;
+        T[v] = select(add, nextT, T[v]);
+        end[v] = select(add, zero + k1, end[v]);
+        live[v] &= ~stop;
+        alive |= live[v];
+        w_sum += w;
+        w_max = vmax(w_max, w);
+      }
+      if constexpr (CONTRIB) {  // all three are 0 where no lane composited it: adding or maxing changes nothing
+        float* q = contrib + 3 * l;
+        q[0] += hsum(w_sum);
+        q[1] = std::max(q[1], hmax(w_max));
+        q[2] = std::max(q[2], hmax(t_max));
+      }
+      if (!any_set(alive)) { any_live = false; break; }
     }
-    for (int v = 0; v < VECS; ++v) {
-      const v8f nextT = T[v] * (1.f - a[v]);
-      const v8i stop = use[v] & (nextT <= T_MIN);
-      const v8i add = use[v] & ~stop;
-      const v8f w = select(add, a[v] * T[v], zero);
-      t_max = vmax(t_max, select(add, T[v], zero));
-      r[v] += w * cr; g[v] += w * cg; b[v] += w * cb; d[v] += w * cz;
-      T[v] = select(add, nextT, T[v]);
-      end[v] = select(add, zero + k1, end[v]);
-      live[v] &= ~stop;
-      alive |= live[v];
-      w_sum += w;
-      w_max = vmax(w_max, w);
-    }
-    if constexpr (CONTRIB) {  // all three are 0 where no lane composited it: adding or maxing changes nothing
-      float* q = contrib + 3 * l;
-      q[0] += hsum(w_sum);
-      q[1] = std::max(q[1], hmax(w_max));
-      q[2] = std::max(q[2], hmax(t_max));
-    }
-    if (!any_set(alive)) break;
   }
   for (int v = 0; v < VECS; ++v) {
     out.T[v] = T[v]; out.r[v] = r[v]; out.g[v] = g[v]; out.b[v] = b[v]; out.d[v] = d[v]; out.end[v] = end[v];
@@ -494,11 +518,13 @@ struct BlockGrad {  // per lane: dL/d(rgb, z, alpha) of the pixel, its final T a
 
 // The backward of composite_block: walks the block's list back to front from the largest end (a lane joins once
 // k < its end), recovering the transmittance in front of each Gaussian as T / (1 - alpha), and adds the block's
-// gradients to grad (10 per tile Gaussian: means2d x y, conic a b c, rgb, z, opacity).
+// gradients to grad (10 per tile Gaussian: means2d x y, conic a b c, rgb, z, opacity). In batches of ENTRY_BATCH
+// entries, as the forward: the alphas and exp(-sigma) of a batch first, then its entries back to front.
 PR_CLONES
 void composite_block_backward(const TileGaussians& G, const int32_t* list, int64_t i0, int64_t j0,
                               const BlockGrad& in, float* grad) {
   v8f px[VECS], py[VECS], T[VECS], Sr[VECS], Sg[VECS], Sb[VECS], Sd[VECS];
+  v8f A[ENTRY_BATCH][VECS], E[ENTRY_BATCH][VECS];
   lane_centres(i0, j0, px, py);
   const v8f zero = {};
   float k_max = 0.f;
@@ -507,50 +533,49 @@ void composite_block_backward(const TileGaussians& G, const int32_t* list, int64
     Sr[v] = Sg[v] = Sb[v] = Sd[v] = zero;
     k_max = std::max(k_max, hmax(in.end[v]));
   }
-  for (int64_t k = (int64_t)k_max - 1; k >= 0; --k) {
-    const int64_t l = list[k];
-    const float mx = G.mx[l], my = G.my[l], qa = G.qa[l], qb = G.qb[l], qc = G.qc[l], o = G.op[l];
-    const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], kf = (float)k;
-    v8f g_mx = zero, g_my = zero, g_qa = zero, g_qb = zero, g_qc = zero, g_r = zero, g_g = zero, g_b = zero,
-        g_z = zero, g_o = zero;
-    v8f dx[VECS], dy[VECS], vis[VECS], a[VECS];
-    v8i use[VECS];
-    for (int v = 0; v < VECS; ++v) {
-      dx[v] = px[v] - mx; dy[v] = py[v] - my;
-      const v8f sigma = 0.5f * (qa * dx[v] * dx[v] + qc * dy[v] * dy[v]) + qb * dx[v] * dy[v];
-      vis[v] = exp_neg(sigma);
-      a[v] = vmin(zero + ALPHA_MAX, o * vis[v]);
-      use[v] = (kf < in.end[v]) & (sigma >= 0.f) & (a[v] >= ALPHA_MIN);
+  for (int64_t k_end = (int64_t)k_max; k_end > 0; k_end -= ENTRY_BATCH) {  // the batch [k_end - nb, k_end)
+    const int64_t nb = std::min(ENTRY_BATCH, k_end), k0 = k_end - nb;
+    batch_alphas<true>(G, list, k0, nb, px, py, A, E);
+    for (int64_t j = nb - 1; j >= 0; --j) {
+      const int64_t k = k0 + j, l = list[k];
+      const float mx = G.mx[l], my = G.my[l], qa = G.qa[l], qb = G.qb[l], qc = G.qc[l], o = G.op[l];
+      const float cr = G.r[l], cg = G.g[l], cb = G.b[l], cz = G.z[l], kf = (float)k;
+      v8f g_mx = zero, g_my = zero, g_qa = zero, g_qb = zero, g_qc = zero, g_r = zero, g_g = zero, g_b = zero,
+          g_z = zero, g_o = zero;
+      // no skip when no lane uses the entry (the masks then add zeros): the skip's branch cost more than the work it
+      // saved, as in the forward (two threads, target command's model: backward 12.9 -> 12.6 ms)
+      for (int v = 0; v < VECS; ++v) {
+        const v8f dx = px[v] - mx, dy = py[v] - my, a = A[j][v], vis = E[j][v];
+        const v8i use = (kf < in.end[v]) & (a >= ALPHA_MIN);
+        const v8f inv = 1.f / (1.f - a);
+        const v8f Tb = T[v] * inv;  // transmittance in front of it
+        const v8f w = select(use, a * Tb, zero);
+        g_r += w * in.gr[v]; g_g += w * in.gg[v]; g_b += w * in.gb[v]; g_z += w * in.gz[v];
+        const v8f g_a = Tb * (cr * in.gr[v] + cg * in.gg[v] + cb * in.gb[v] + cz * in.gz[v])
+                        - (Sr[v] * in.gr[v] + Sg[v] * in.gg[v] + Sb[v] * in.gb[v] + Sd[v] * in.gz[v]) * inv
+                        + in.ga[v] * in.T_end[v] * inv;
+        Sr[v] += w * cr; Sg[v] += w * cg; Sb[v] += w * cb; Sd[v] += w * cz;
+        T[v] = select(use, Tb, T[v]);
+        // a clamped alpha passes no gradient to opacity or shape
+        const v8f g_vis = select(use & (o * vis <= ALPHA_MAX), vis * g_a, zero);
+        g_o += g_vis;
+        const v8f g_sigma = -o * g_vis;
+        g_qa += 0.5f * dx * dx * g_sigma;
+        g_qb += dx * dy * g_sigma;
+        g_qc += 0.5f * dy * dy * g_sigma;
+        // qa dx, qb dx and qc dy rounded on their own before the sums (the barriers keep GCC from fusing them into
+        // multiply-adds), as when one loop shared them with sigma: the gradients of the one-pass kernel, to the bit
+        g_mx -= (__builtin_assoc_barrier(qa * dx) + qb * dy) * g_sigma;
+        g_my -= (__builtin_assoc_barrier(qb * dx) + __builtin_assoc_barrier(qc * dy)) * g_sigma;
+      }
+      float* q = grad + l * 10;  // q[0..7] += the first eight sums as one vector (unaligned), then z and opacity
+      const v8f first8[8] = {g_mx, g_my, g_qa, g_qb, g_qc, g_r, g_g, g_b};
+      v8f sums;
+      std::memcpy(&sums, q, sizeof(v8f));
+      sums += hsum8(first8);
+      std::memcpy(q, &sums, sizeof(v8f));
+      q[8] += hsum(g_z); q[9] += hsum(g_o);
     }
-    // no skip when no lane uses the entry (the masks then add zeros): the skip's branch cost more than the work it
-    // saved, as in the forward (two threads, target command's model: backward 12.9 -> 12.6 ms)
-    for (int v = 0; v < VECS; ++v) {
-      const v8f inv = 1.f / (1.f - a[v]);
-      const v8f Tb = T[v] * inv;  // transmittance in front of it
-      const v8f w = select(use[v], a[v] * Tb, zero);
-      g_r += w * in.gr[v]; g_g += w * in.gg[v]; g_b += w * in.gb[v]; g_z += w * in.gz[v];
-      const v8f g_a = Tb * (cr * in.gr[v] + cg * in.gg[v] + cb * in.gb[v] + cz * in.gz[v])
-                      - (Sr[v] * in.gr[v] + Sg[v] * in.gg[v] + Sb[v] * in.gb[v] + Sd[v] * in.gz[v]) * inv
-                      + in.ga[v] * in.T_end[v] * inv;
-      Sr[v] += w * cr; Sg[v] += w * cg; Sb[v] += w * cb; Sd[v] += w * cz;
-      T[v] = select(use[v], Tb, T[v]);
-      // a clamped alpha passes no gradient to opacity or shape
-      const v8f g_vis = select(use[v] & (o * vis[v] <= ALPHA_MAX), vis[v] * g_a, zero);
-      g_o += g_vis;
-      const v8f g_sigma = -o * g_vis;
-      g_qa += 0.5f * dx[v] * dx[v] * g_sigma;
-      g_qb += dx[v] * dy[v] * g_sigma;
-      g_qc += 0.5f * dy[v] * dy[v] * g_sigma;
-      g_mx -= (qa * dx[v] + qb * dy[v]) * g_sigma;
-      g_my -= (qb * dx[v] + qc * dy[v]) * g_sigma;
-    }
-    float* q = grad + l * 10;  // q[0..7] += the first eight sums as one vector (unaligned), then z and opacity
-    const v8f first8[8] = {g_mx, g_my, g_qa, g_qb, g_qc, g_r, g_g, g_b};
-    v8f sums;
-    std::memcpy(&sums, q, sizeof(v8f));
-    sums += hsum8(first8);
-    std::memcpy(q, &sums, sizeof(v8f));
-    q[8] += hsum(g_z); q[9] += hsum(g_o);
   }
 }
 
