@@ -434,9 +434,9 @@ struct BlockOut {  // per lane: transmittance, rgb, accumulated z, entries of th
 // its T to <= T_MIN, lanes outside the image start stopped. With CONTRIB, adds this block's weight sum, and maxes
 // its weight max and max T, into contrib[3 l .. 3 l + 2] for the tile's Gaussian l (the tile's own buffer).
 // The list is walked in batches of ENTRY_BATCH entries: first every entry's alpha in every lane (independent of one
-// another), then the blend, whose transmittance carries from entry to entry. In one pass, each entry's alpha (a
-// quadratic form and an exp, ~60 cycles of latency) hung off the chain, and only two entries fitted in the core's
-// reorder window: the loop ran at a third of its instruction throughput (docs/benchmarks.md). Same arithmetic, same bits.
+// another), then the blend, whose transmittance carries from entry to entry: the exps of a batch no longer wait in
+// the core's reorder window behind the blend's chain. Same arithmetic, same bits; on the target command's trained
+// model ~1.09x forward and ~1.05x backward (batches of 8, 16 and 32 within the noise of each other; docs/benchmarks.md).
 constexpr int64_t ENTRY_BATCH = 32;
 
 // alpha of list entries [k0, k0 + nb) in every lane, A[j] for entry k0 + j: min(0.99, o exp(-sigma)) where
