@@ -1,9 +1,10 @@
 """The cpu backend's training-step kernels beside the compositor against their PyTorch references, measured in the
 same run, as speed ratios: SSIM of a render against a target (``losses.ssim``, fused in C++, against
-``losses.ssim_separable``), forward + backward, and the SH colours at degree 0, the trainer's
+``losses.ssim_separable``), forward + backward; the SH colours at degree 0, the trainer's
 (``cpu_backend.sh_colors`` against ``sh_colors_reference`` masked to the visible pairs), forward + backward, with a
-tenth of the Gaussians visible. Median ms over repeats (the two called alternately, after warm-up calls), the ratio
-reference / fused, and the largest |difference| of values and gradients.
+tenth of the Gaussians visible; and the loss's L1 and Pearson depth terms (``loss_rows``). Median ms over repeats
+(the two called alternately, after warm-up calls), the ratio reference / fused, and the largest |difference| of
+values and gradients.
 
     python -m panorecon.evaluation.bench_fused [--quick] [--repeats N] [--out result.json]
 
@@ -91,6 +92,36 @@ def sh_rows(n: int, repeats: int) -> dict:
     }
 
 
+def loss_rows(size: int, repeats: int) -> dict:
+    """The loss's L1 of a [1, size, size, 3] render against a target plus its Pearson depth term over a [size, size]
+    depth with a third of the pixels masked out, forward + backward: ``losses.l1`` and ``losses.pearson_depth_loss``
+    (fused in C++) against the PyTorch formulas (``(a - b).abs().mean()``, ``pearson_depth_loss_torch``)."""
+    from panorecon.splat.losses import l1, pearson_depth_loss, pearson_depth_loss_torch
+
+    g = torch.Generator().manual_seed(2)
+    target, render = torch.rand(1, size, size, 3, generator=g), torch.rand(1, size, size, 3, generator=g)
+    depth = torch.rand(size, size, generator=g) * 4 + 1
+    teacher, valid = 2 * depth + torch.rand(size, size, generator=g), torch.rand(size, size, generator=g) > 0.3
+    out = {}
+
+    def run(key):
+        image, z = render.clone().requires_grad_(True), depth.clone().requires_grad_(True)
+        if key == "fused":
+            value = 0.8 * l1(image, target) + 0.05 * pearson_depth_loss(z, teacher, valid)
+        else:
+            value = 0.8 * (image - target).abs().mean() + 0.05 * pearson_depth_loss_torch(z, teacher, valid)
+        value.backward()
+        out[key] = (value.detach(), image.grad, z.grad)
+
+    fused_ms, reference_ms = _paired_ms(lambda: run("fused"), lambda: run("reference"), repeats)
+    return {
+        "loss_ms": fused_ms,
+        "loss_reference_ms": reference_ms,
+        "loss_speedup_vs_torch": reference_ms / fused_ms,
+        "loss_max_abs_difference": max(float((a - b).abs().max()) for a, b in zip(out["fused"], out["reference"])),
+    }
+
+
 def measure(quick: bool = True, repeats: int = 20) -> dict:
     """The rows above at CI's sizes (``quick``) or the trainer's (256², 200k Gaussians)."""
     from panorecon.splat.rasterize import cpu_backend
@@ -98,7 +129,8 @@ def measure(quick: bool = True, repeats: int = 20) -> dict:
     if not cpu_backend.available():
         return {"status": "n/a: the C++ cpu backend could not be built here"}
     size, n = (128, 20_000) if quick else (256, 200_000)
-    return {"size": size, "gaussians": n, "repeats": repeats, **ssim_rows(size, repeats), **sh_rows(n, repeats)}
+    rows = {**ssim_rows(size, repeats), **sh_rows(n, repeats), **loss_rows(size, repeats)}
+    return {"size": size, "gaussians": n, "repeats": repeats, **rows}
 
 
 def main(argv=None) -> dict:
@@ -110,7 +142,7 @@ def main(argv=None) -> dict:
     result = measure(args.quick, args.repeats)
     return emit(
         {
-            "benchmark": "fused SSIM and SH against their PyTorch references",
+            "benchmark": "fused SSIM, SH and loss terms against their PyTorch references",
             **environment(),
             "threads": torch.get_num_threads(),
             **result,

@@ -1,4 +1,5 @@
-"""Training losses (paper eq. 8-12): L1, SSIM and a Pearson-correlation depth term.
+"""Training losses (paper eq. 8-12): L1, SSIM and a Pearson-correlation depth term; on the CPU in C++
+(csrc/ssim_cpu.cpp, csrc/loss_cpu.cpp), with the PyTorch formulas as the reference and the fallback.
 
 SSIM: 11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2 on [0, 1] images, computed on the
 'valid' region (no padding) and averaged over pixels and channels.
@@ -84,13 +85,66 @@ def ssim_reference(a: torch.Tensor, b: torch.Tensor, size: int = 11, sigma: floa
     return _ssim_map(conv(x), conv(y), conv(x * x), conv(y * y), conv(x * y)).mean()
 
 
+class _FusedL1(torch.autograd.Function):
+    """mean |x - y| of float32 CPU tensors in C++ (csrc/loss_cpu.cpp), a pass each way; the gradient has the bits of
+    PyTorch's backward of ``(x - y).abs().mean()``, the value is summed in double."""
+
+    @staticmethod
+    def forward(ctx, x, y):
+        ctx.save_for_backward(x, y)
+        return cpu_backend.load().l1_forward(x, y)
+
+    @staticmethod
+    def backward(ctx, g):
+        x, y = ctx.saved_tensors
+        return cpu_backend.load().l1_backward(x, y, g.float()), None
+
+
+def l1(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """mean |a - b|, differentiable w.r.t. ``a``: fused in C++ for float32 CPU tensors of one shape when the cpu
+    backend is built and ``b`` needs no gradient (a target), else in PyTorch."""
+    fused = a.device.type == "cpu" and a.dtype == b.dtype == torch.float32 and a.shape == b.shape
+    if fused and not b.requires_grad and cpu_backend.available():
+        return _FusedL1.apply(a.contiguous(), b.contiguous())
+    return (a - b).abs().mean()
+
+
+class _FusedPearson(torch.autograd.Function):
+    """``pearson_depth_loss`` of float32 CPU depths in C++ (csrc/loss_cpu.cpp): two passes with double sums for the
+    value, one for the gradient w.r.t. the rendered depth."""
+
+    @staticmethod
+    def forward(ctx, rendered, teacher, valid):
+        loss, stats = cpu_backend.load().pearson_forward(rendered, teacher, valid)
+        ctx.save_for_backward(rendered, teacher, valid, stats)
+        return loss
+
+    @staticmethod
+    def backward(ctx, g):
+        rendered, teacher, valid, stats = ctx.saved_tensors
+        return cpu_backend.load().pearson_backward(rendered, teacher, valid, stats, g), None, None
+
+
 def pearson_depth_loss(
     rendered: torch.Tensor, teacher: torch.Tensor, valid: torch.Tensor | None = None
 ) -> torch.Tensor:
     """1 - Pearson correlation between rendered and teacher depth over valid pixels (eq. 10-11): invariant to
-    the teacher's scale and shift. Fewer than 2 valid pixels or a constant map give 0 loss. Masked sums, no
-    boolean indexing or branch on a value: nothing is read back to the host (``pearson_depth_loss_reference``
-    is the same quantity, written directly)."""
+    the teacher's scale and shift. Fewer than 2 valid pixels or a constant map give 0 loss. Fused in C++ (sums in
+    double) for float32 CPU depths of one shape when the cpu backend is built and the teacher needs no gradient;
+    else masked sums in PyTorch, no boolean indexing or branch on a value: nothing is read back to the host.
+    ``pearson_depth_loss_reference`` is the same quantity, written directly."""
+    fused = rendered.device.type == "cpu" and rendered.dtype == teacher.dtype == torch.float32
+    fused = fused and rendered.shape == teacher.shape and (valid is None or valid.shape == rendered.shape)
+    if fused and not teacher.requires_grad and cpu_backend.available():
+        mask = torch.empty(0, dtype=torch.bool) if valid is None else valid.to(torch.bool).contiguous()
+        return _FusedPearson.apply(rendered.contiguous(), teacher.contiguous(), mask)
+    return pearson_depth_loss_torch(rendered, teacher, valid)
+
+
+def pearson_depth_loss_torch(
+    rendered: torch.Tensor, teacher: torch.Tensor, valid: torch.Tensor | None = None
+) -> torch.Tensor:
+    """``pearson_depth_loss`` in PyTorch on any device and dtype, by masked sums in the inputs' dtype."""
     ok = torch.isfinite(teacher) & torch.isfinite(rendered)
     if valid is not None:
         ok = ok & valid
@@ -114,18 +168,18 @@ def pearson_depth_loss_reference(
     if valid is not None:
         ok = ok & valid
     if ok.sum() < 2:
-        return rendered.sum() * 0
+        return rendered[ok].sum() * 0  # over the valid pixels only: a NaN elsewhere would make it NaN
     x, y = rendered[ok], teacher[ok]
     x, y = x - x.mean(), y - y.mean()
     denom = torch.sqrt((x * x).sum() * (y * y).sum())
     if denom <= 1e-12:
-        return rendered.sum() * 0
+        return rendered[ok].sum() * 0
     return 1 - (x * y).sum() / denom
 
 
 def total_loss(render, target, depth=None, teacher_depth=None, valid=None, w_l1=0.8, w_ssim=0.2, w_depth=0.05):
     """w_l1 L1 + w_ssim (1 - SSIM) + w_depth (1 - Pearson) (eq. 8); the 3DGS default 0.8 / 0.2, depth 0.05."""
-    loss = w_l1 * (render - target).abs().mean() + w_ssim * (1 - ssim(render, target))
+    loss = w_l1 * l1(render, target) + w_ssim * (1 - ssim(render, target))
     if w_depth and depth is not None and teacher_depth is not None:
         loss = loss + w_depth * pearson_depth_loss(depth, teacher_depth, valid)
     return loss

@@ -227,6 +227,88 @@ def test_sync_free_pearson_equals_the_reference_values_and_gradients(seed, inval
     torch.testing.assert_close(a.grad, b.grad, rtol=1e-8, atol=1e-12)
 
 
+@pytest.mark.skipif(not cpu_backend.available(), reason="the C++ cpu backend could not be built here")
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    invalid=st.floats(0.0, 1.0),
+    constant=st.booleans(),
+    few=st.booleans(),
+    decades=st.floats(0.0, 7.0),
+)
+def test_fused_float32_pearson_matches_the_float64_reference(seed, invalid, constant, few, decades):
+    """The C++ depth term (float32 CPU depths, double sums) against pearson_depth_loss_reference in float64, values
+    and gradients: random masks, NaN/inf teachers and renders, a constant teacher, < 2 valid pixels, and depths
+    spread over up to 7 decades (where float32 sums of the squared deviations would lose the correlation)."""
+    from panorecon.splat.losses import _FusedPearson, pearson_depth_loss_reference
+
+    g = torch.Generator().manual_seed(seed)
+    x = 10 ** (torch.rand(40, 30, generator=g, dtype=torch.float64) * decades)
+    y = 3 * x + x.mean() * torch.rand(40, 30, generator=g, dtype=torch.float64)
+    y[torch.rand(40, 30, generator=g) < invalid / 2] = float("nan")
+    y[torch.rand(40, 30, generator=g) < invalid / 4] = float("inf")
+    x[torch.rand(40, 30, generator=g) < invalid / 8] = float("nan")
+    valid = torch.rand(40, 30, generator=g) >= invalid / 2
+    if constant:
+        y = torch.where(torch.isfinite(y), torch.full_like(y, 2.0), y)
+    if few:
+        valid = torch.zeros_like(valid)
+        valid[0, 0] = True
+    x, y = x.float().double(), y.float().double()  # values float32 holds: both sides see the same inputs
+    a, b = x.float().requires_grad_(True), x.clone().requires_grad_(True)
+    fast, ref = pearson_depth_loss(a, y.float(), valid), pearson_depth_loss_reference(b, y, valid)
+    assert type(fast.grad_fn).__name__ == _FusedPearson.__name__ + "Backward"
+    torch.testing.assert_close(fast.double(), ref, rtol=0, atol=2e-6)
+    fast.backward()
+    ref.backward()
+    assert torch.isfinite(a.grad).all()
+    scale = b.grad.abs().max().clamp_min(1e-30)
+    assert float((a.grad.double() - b.grad).abs().max() / scale) < 1e-5
+
+
+@pytest.mark.skipif(not cpu_backend.available(), reason="the C++ cpu backend could not be built here")
+def test_fused_losses_are_the_same_for_one_and_two_threads():
+    """The double sums run over fixed chunks added in order: the same bits whatever the thread count."""
+    from panorecon.splat.losses import l1
+
+    g = torch.Generator().manual_seed(2)
+    x = torch.rand(256, 256, generator=g) * 10
+    y = x + torch.rand(256, 256, generator=g)
+    out = []
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            a = x.clone().requires_grad_(True)
+            value = pearson_depth_loss(a, y, x > 2) + l1(a, y)
+            value.backward()
+            out.append((value.detach(), a.grad))
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(out[0][0], out[1][0]) and torch.equal(out[0][1], out[1][1])
+
+
+@pytest.mark.skipif(not cpu_backend.available(), reason="the C++ cpu backend could not be built here")
+@pytest.mark.parametrize("weight", [0.8, -1.3])
+def test_fused_l1_gradient_has_the_bits_of_pytorchs(weight):
+    """The C++ L1's gradient rounds as autograd's backward of (a - b).abs().mean() (g / n in float32, times sgn),
+    ties (a == b) and NaN (torch.sgn: 0) included; its value (double sum) within float32 rounding of PyTorch's."""
+    from panorecon.splat.losses import _FusedL1, l1
+
+    g = torch.Generator().manual_seed(5)
+    x, y = torch.rand(1, 64, 48, 3, generator=g), torch.rand(1, 64, 48, 3, generator=g)
+    y[0, :5] = x[0, :5]
+    x[0, 7, 3, 1] = float("nan")
+    a, b = x.clone().requires_grad_(True), x.clone().requires_grad_(True)
+    fast, ref = l1(a, y), (b - y).abs().mean()
+    assert type(fast.grad_fn).__name__ == _FusedL1.__name__ + "Backward"
+    (weight * fast).backward()
+    (weight * ref).backward()
+    assert torch.equal(a.grad, b.grad)
+    finite = ~x.isnan()
+    torch.testing.assert_close(l1(x[finite], y[finite]), (x - y)[finite].abs().mean(), rtol=1e-6, atol=0)
+
+
 def test_nearest_neighbour_scale_equals_brute_force():
     from panorecon.splat.model import nearest_neighbour_scale
 

@@ -1,7 +1,8 @@
 """The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians), SH colours of the visible
 Gaussians (csrc/sh_cpu.cpp, parallel over Gaussians) and tiled compositing (csrc/rasterize_cpu.cpp, parallel over
-tiles) in C++ with hand-written backwards, through ATen's thread pool (OpenMP); csrc/densify_cpu.cpp accumulates the
-trainer's densification statistic. Built with torch.utils.cpp_extension on first use (or ahead of time by
+tiles) in C++ with hand-written backwards, through ATen's thread pool (OpenMP); the training loss's SSIM
+(csrc/ssim_cpu.cpp), L1 and depth term (csrc/loss_cpu.cpp) and the densification statistic (csrc/densify_cpu.cpp)
+beside them. Built with torch.utils.cpp_extension on first use (or ahead of time by
 ``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions/<checkout>`` (default
 ~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the hot compositing functions
 are built three times (x86-64-v4 with AVX-512, x86-64-v3 with AVX2 and FMA, and baseline x86-64) and the loader picks
@@ -30,6 +31,7 @@ SOURCE_FILES = (
     "sh_cpu.cpp",
     "rasterize_cpu.cpp",
     "ssim_cpu.cpp",
+    "loss_cpu.cpp",
     "densify_cpu.cpp",
     "peak_cpu.cpp",
 )

@@ -1,6 +1,6 @@
 // The Python module of the cpu backend: projection (project_cpu.cpp), SH colours (sh_cpu.cpp), compositing
-// (rasterize_cpu.cpp), the training loss's SSIM (ssim_cpu.cpp), the densification statistic (densify_cpu.cpp), and
-// the machine's measured limits for the roofline benchmark (peak_cpu.cpp).
+// (rasterize_cpu.cpp), the training loss's SSIM (ssim_cpu.cpp), L1 and depth term (loss_cpu.cpp), the densification
+// statistic (densify_cpu.cpp), and the machine's measured limits for the roofline benchmark (peak_cpu.cpp).
 #include <torch/extension.h>
 #include <vector>
 
@@ -27,6 +27,11 @@ std::vector<torch::Tensor> sh_backward(torch::Tensor dc, torch::Tensor rest, tor
 std::vector<torch::Tensor> ssim_forward(torch::Tensor x, torch::Tensor y, torch::Tensor g);
 torch::Tensor ssim_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g, torch::Tensor partials,
                             torch::Tensor g_mean);
+torch::Tensor l1_forward(torch::Tensor x, torch::Tensor y);
+torch::Tensor l1_backward(torch::Tensor x, torch::Tensor y, torch::Tensor g_loss);
+std::vector<torch::Tensor> pearson_forward(torch::Tensor x, torch::Tensor y, torch::Tensor valid);
+torch::Tensor pearson_backward(torch::Tensor x, torch::Tensor y, torch::Tensor valid, torch::Tensor stats,
+                               torch::Tensor g_loss);
 void accumulate_screen_grads(torch::Tensor grad_sum, torch::Tensor count, torch::Tensor g_m2d, torch::Tensor radii,
                              double sx, double sy);
 std::vector<double> peak_fma(int64_t iters, int64_t lanes);
@@ -41,6 +46,10 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("sh_backward", &sh_backward, "SH colours of the visible Gaussians, backward");
   m.def("ssim_forward", &ssim_forward, "fused SSIM of planar images: mean of the map, and its partials");
   m.def("ssim_backward", &ssim_backward, "fused SSIM, gradient w.r.t. x");
+  m.def("l1_forward", &l1_forward, "mean |x - y|");
+  m.def("l1_backward", &l1_backward, "mean |x - y|, gradient w.r.t. x");
+  m.def("pearson_forward", &pearson_forward, "1 - Pearson correlation of depths over valid pixels, and its statistics");
+  m.def("pearson_backward", &pearson_backward, "1 - Pearson correlation, gradient w.r.t. the rendered depth");
   m.def("accumulate_screen_grads", &accumulate_screen_grads,
         "densification statistic in place: sums of NDC 2D-mean gradient norms and counts of the seen pairs");
   m.def("peak_fma", &peak_fma, "FMA loop on every thread, 8 or 16 lanes -> [seconds, flops]");
