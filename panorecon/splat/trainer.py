@@ -7,6 +7,7 @@ import hashlib
 import json
 import logging
 import math
+import statistics
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -268,6 +269,26 @@ def best_heldout(history: list[dict], reason: str | None = None) -> dict | str:
         return reason or "n/a: no held-out PSNR in the history (no held-out views, or history_every = 0)"
     b = max(samples, key=lambda h: h["heldout_psnr"])
     return {k: b[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr") if k in b}
+
+
+def heldout_plateau(history: list[dict], reason: str | None = None) -> dict | str:
+    """Held-out PSNR over the second half of the run's history samples (iteration > half the last one): their
+    number, mean, sample SD, min and max (dB). The level a run settles at and its step-to-step wobble, which
+    ``heldout_best``, a maximum over those noisy samples, reads above; 'n/a: <reason>' with fewer than 2 such
+    samples."""
+    samples = [h for h in history if "heldout_psnr" in h]
+    late = [h["heldout_psnr"] for h in samples if h["iteration"] > samples[-1]["iteration"] / 2] if samples else []
+    if len(late) < 2:
+        return reason or "n/a: fewer than 2 held-out PSNR samples in the second half of the history"
+    first = next(h["iteration"] for h in samples if h["iteration"] > samples[-1]["iteration"] / 2)
+    return {
+        "from_iteration": first,
+        "samples": len(late),
+        "mean": statistics.fmean(late),
+        "sd": statistics.stdev(late),
+        "min": min(late),
+        "max": max(late),
+    }
 
 
 def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
@@ -560,6 +581,7 @@ def train(
         **device_record(dev),
         history=history,
         heldout_best=best_heldout(history, heldout_na),
+        heldout_plateau=heldout_plateau(history, heldout_na),
         heldout_scale=heldout_scale,
         config=dataclasses.asdict(cfg),
     )

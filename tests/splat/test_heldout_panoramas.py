@@ -98,8 +98,9 @@ def test_min_covisible_pixels_is_the_line():
 
 
 def test_no_covisible_pixel_reads_na_everywhere(tmp_path):
-    """Two Structured3D rooms that see nothing of each other: metrics.json's held-out, heldout_best, the history
-    and the results.csv row all say the same n/a, and no number computed on nothing appears anywhere."""
+    """Two Structured3D rooms that see nothing of each other: metrics.json's held-out, heldout_best and
+    heldout_plateau, the history and the results.csv row all say the same n/a, and no number computed on nothing
+    appears anywhere."""
     from panorecon.evaluation.ablate import result_row
     from panorecon.pipeline import Row
     from panorecon.splat.trainer import TrainConfig, train
@@ -115,7 +116,7 @@ def test_no_covisible_pixel_reads_na_everywhere(tmp_path):
     m = train(scene, scene.point_cloud(), cfg, tmp_path / "run", progress=False)
     na = m["held-out"]["psnr"]
     assert na.startswith("n/a: no held-out view has") and m["held-out"]["pixels"] == 0
-    assert m["heldout_best"] == na
+    assert m["heldout_best"] == m["heldout_plateau"] == na
     assert len(m["history"]) == 2 and all("heldout_psnr" not in h for h in m["history"])
     saved = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert saved["heldout_best"] == saved["held-out"]["psnr"] == na

@@ -62,6 +62,18 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     best = max(hist, key=lambda h: h["heldout_psnr"])
     assert m["heldout_best"] == {k: best[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr")}
     assert trainer_mod.best_heldout([{"iteration": 1, "psnr": 3.0}]).startswith("n/a")
+    late = [h["heldout_psnr"] for h in hist[1:]]  # iterations 40 and 60: past half of the last sample's 60
+    assert m["heldout_plateau"] == pytest.approx(
+        {
+            "from_iteration": 40,
+            "samples": 2,
+            "mean": np.mean(late),
+            "sd": np.std(late, ddof=1),
+            "min": min(late),
+            "max": max(late),
+        }
+    )
+    assert trainer_mod.heldout_plateau(hist[:2]).startswith("n/a")  # 40 > 20 only: one sample past the half
 
     cams = json.loads((tmp_path / "b" / "cameras.json").read_text())
     assert len(cams["pseudo-label"]) == cfg().labels and len(cams["held-out"]) == cfg().heldout
