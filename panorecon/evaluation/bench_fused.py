@@ -37,6 +37,24 @@ def _paired_ms(fused, reference, repeats: int) -> tuple[float, float]:
     return statistics.median(times[fused]), statistics.median(times[reference])
 
 
+def _rows(kernel: str, run, repeats: int) -> dict:
+    """``run("fused")`` against ``run("reference")`` (each -> its values and gradients) by ``_paired_ms``: the
+    ``{kernel}_ms``, ``{kernel}_reference_ms``, ``{kernel}_speedup_vs_torch`` and ``{kernel}_max_abs_difference``
+    (over every value and gradient, from the last calls) rows."""
+    out = {}
+
+    def call(key):
+        out[key] = run(key)
+
+    fused_ms, reference_ms = _paired_ms(lambda: call("fused"), lambda: call("reference"), repeats)
+    return {
+        f"{kernel}_ms": fused_ms,
+        f"{kernel}_reference_ms": reference_ms,
+        f"{kernel}_speedup_vs_torch": reference_ms / fused_ms,
+        f"{kernel}_max_abs_difference": max(float((a - b).abs().max()) for a, b in zip(out["fused"], out["reference"])),
+    }
+
+
 def ssim_rows(size: int, repeats: int) -> dict:
     """SSIM forward + backward of a [1, size, size, 3] render against a target: fused and separable PyTorch."""
     from panorecon.splat.losses import ssim, ssim_separable
@@ -44,21 +62,14 @@ def ssim_rows(size: int, repeats: int) -> dict:
     g = torch.Generator().manual_seed(0)
     target = torch.rand(1, size, size, 3, generator=g)
     render = (target + 0.1 * torch.randn(1, size, size, 3, generator=g)).clamp(0, 1)
-    out = {}
 
-    def run(fn, key):
+    def run(key):
         leaf = render.clone().requires_grad_(True)
-        value = fn(leaf, target)
+        value = (ssim if key == "fused" else ssim_separable)(leaf, target)
         value.backward()
-        out[key] = (value.detach(), leaf.grad)
+        return value.detach(), leaf.grad
 
-    fused_ms, reference_ms = _paired_ms(lambda: run(ssim, "fused"), lambda: run(ssim_separable, "reference"), repeats)
-    return {
-        "ssim_ms": fused_ms,
-        "ssim_reference_ms": reference_ms,
-        "ssim_speedup_vs_torch": reference_ms / fused_ms,
-        "ssim_max_abs_difference": max(float((a - b).abs().max()) for a, b in zip(out["fused"], out["reference"])),
-    }
+    return _rows("ssim", run, repeats)
 
 
 def sh_rows(n: int, repeats: int) -> dict:
@@ -72,7 +83,6 @@ def sh_rows(n: int, repeats: int) -> dict:
     means, campos = torch.randn(n, 3, generator=g), torch.zeros(1, 3)
     radii = ((torch.rand(1, n, generator=g) < 0.1) * 3).to(torch.int32)
     upstream = torch.randn(1, n, 3, generator=g)
-    out = {}
 
     def run(key):
         dc = sh0.clone().requires_grad_(True)
@@ -81,15 +91,9 @@ def sh_rows(n: int, repeats: int) -> dict:
         else:
             colors = sh_colors_reference(0, torch.cat([dc, shN], 1), means, campos) * (radii[..., None] > 0)
         (colors * upstream).sum().backward()
-        out[key] = (colors.detach(), dc.grad)
+        return colors.detach(), dc.grad
 
-    fused_ms, reference_ms = _paired_ms(lambda: run("fused"), lambda: run("reference"), repeats)
-    return {
-        "sh_ms": fused_ms,
-        "sh_reference_ms": reference_ms,
-        "sh_speedup_vs_torch": reference_ms / fused_ms,
-        "sh_max_abs_difference": max(float((a - b).abs().max()) for a, b in zip(out["fused"], out["reference"])),
-    }
+    return _rows("sh", run, repeats)
 
 
 def loss_rows(size: int, repeats: int) -> dict:
@@ -102,7 +106,6 @@ def loss_rows(size: int, repeats: int) -> dict:
     target, render = torch.rand(1, size, size, 3, generator=g), torch.rand(1, size, size, 3, generator=g)
     depth = torch.rand(size, size, generator=g) * 4 + 1
     teacher, valid = 2 * depth + torch.rand(size, size, generator=g), torch.rand(size, size, generator=g) > 0.3
-    out = {}
 
     def run(key):
         image, z = render.clone().requires_grad_(True), depth.clone().requires_grad_(True)
@@ -111,15 +114,9 @@ def loss_rows(size: int, repeats: int) -> dict:
         else:
             value = 0.8 * (image - target).abs().mean() + 0.05 * pearson_depth_loss_torch(z, teacher, valid)
         value.backward()
-        out[key] = (value.detach(), image.grad, z.grad)
+        return value.detach(), image.grad, z.grad
 
-    fused_ms, reference_ms = _paired_ms(lambda: run("fused"), lambda: run("reference"), repeats)
-    return {
-        "loss_ms": fused_ms,
-        "loss_reference_ms": reference_ms,
-        "loss_speedup_vs_torch": reference_ms / fused_ms,
-        "loss_max_abs_difference": max(float((a - b).abs().max()) for a, b in zip(out["fused"], out["reference"])),
-    }
+    return _rows("loss", run, repeats)
 
 
 def measure(quick: bool = True, repeats: int = 20) -> dict:

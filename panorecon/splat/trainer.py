@@ -277,17 +277,17 @@ def heldout_plateau(history: list[dict], reason: str | None = None) -> dict | st
     ``heldout_best``, a maximum over those noisy samples, reads above; 'n/a: <reason>' with fewer than 2 such
     samples."""
     samples = [h for h in history if "heldout_psnr" in h]
-    late = [h["heldout_psnr"] for h in samples if h["iteration"] > samples[-1]["iteration"] / 2] if samples else []
+    late = [h for h in samples if h["iteration"] > samples[-1]["iteration"] / 2] if samples else []
     if len(late) < 2:
         return reason or "n/a: fewer than 2 held-out PSNR samples in the second half of the history"
-    first = next(h["iteration"] for h in samples if h["iteration"] > samples[-1]["iteration"] / 2)
+    psnr = [h["heldout_psnr"] for h in late]
     return {
-        "from_iteration": first,
-        "samples": len(late),
-        "mean": statistics.fmean(late),
-        "sd": statistics.stdev(late),
-        "min": min(late),
-        "max": max(late),
+        "from_iteration": late[0]["iteration"],
+        "samples": len(psnr),
+        "mean": statistics.fmean(psnr),
+        "sd": statistics.stdev(psnr),
+        "min": min(psnr),
+        "max": max(psnr),
     }
 
 

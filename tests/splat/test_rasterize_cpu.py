@@ -148,14 +148,36 @@ def test_partial_blocks_and_saturated_pixels_agree():
         torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
 
 
+def composite_both(gaussians, radii, width, height, loss):
+    """The torch reference (``rasterize_tiles``) and ``cpu_backend.composite`` on the same 2D Gaussians (means2d,
+    conics, colors, opacities, depths) -> {"torch" | "cpu": (image, alpha, gradients of loss(image, alpha, depth)
+    w.r.t. the five)}."""
+    from panorecon.splat.rasterize.torch_backend import rasterize_tiles
+
+    out = {}
+    for name, fn in (("torch", rasterize_tiles), ("cpu", cpu_backend.composite)):
+        leaves = [t.clone().requires_grad_(True) for t in gaussians]
+        img, alpha, depth, _ = fn(*leaves, radii, width, height)
+        loss(img, alpha, depth).backward()
+        out[name] = (img.detach(), alpha.detach(), [t.grad for t in leaves])
+    return out
+
+
+def assert_cpu_matches_torch(out):
+    """Image, alpha and every gradient of ``composite_both``'s two sides agree (gradients relative to the largest)."""
+    torch.testing.assert_close(out["cpu"][0], out["torch"][0], atol=ATOL_VALUE, rtol=RTOL)
+    torch.testing.assert_close(out["cpu"][1], out["torch"][1], atol=ATOL_VALUE, rtol=RTOL)
+    for name, a, b in zip(("means2d", "conics", "colors", "opacities", "depths"), out["cpu"][2], out["torch"][2]):
+        scale = b.abs().max().clamp_min(1.0)
+        torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
+
+
 @pytest.mark.parametrize("opacity", [0.1, 0.3])
 def test_long_lists_stop_inside_a_later_batch(opacity):
     """The kernels walk a block's list in batches of entries (alphas first, then the blend; the backward batch by
     batch from the back). 300 wide, translucent splats over every pixel: with opacity 0.1 a pixel's T reaches 1e-4
     only after ~90 entries, with 0.3 after ~26 (random alphas put the stops at every offset within a batch), so
     lists run over many batches and stop inside one. Values and gradients against the reference."""
-    from panorecon.splat.rasterize.torch_backend import rasterize_tiles
-
     g = torch.Generator().manual_seed(11)
     n, width, height = 300, 29, 19
     means2d = (torch.rand(1, n, 2, generator=g) * torch.tensor([width, height])).contiguous()
@@ -164,18 +186,15 @@ def test_long_lists_stop_inside_a_later_batch(opacity):
     opac = torch.full((n,), opacity)
     colors = torch.rand(1, n, 3, generator=g)
     depths = torch.rand(1, n, generator=g) + 1
-    out = {}
-    for name, fn in (("torch", rasterize_tiles), ("cpu", cpu_backend.composite)):
-        leaves = [t.clone().requires_grad_(True) for t in (means2d, conics, colors, opac, depths)]
-        img, alpha, depth, _ = fn(*leaves[:5], radii, width, height)
-        ((img * torch.linspace(0.5, 1.5, 3)).sum() + alpha.sum() + 0.1 * depth.sum()).backward()
-        out[name] = (img.detach(), alpha.detach(), [t.grad for t in leaves])
+    out = composite_both(
+        (means2d, conics, colors, opac, depths),
+        radii,
+        width,
+        height,
+        lambda img, alpha, depth: (img * torch.linspace(0.5, 1.5, 3)).sum() + alpha.sum() + 0.1 * depth.sum(),
+    )
     assert (out["torch"][1] > 1 - 2e-4).float().mean() > 0.9, "most pixels should stop before their list ends"
-    torch.testing.assert_close(out["cpu"][0], out["torch"][0], atol=ATOL_VALUE, rtol=RTOL)
-    torch.testing.assert_close(out["cpu"][1], out["torch"][1], atol=ATOL_VALUE, rtol=RTOL)
-    for name, a, b in zip(("means2d", "conics", "colors", "opacities", "depths"), out["cpu"][2], out["torch"][2]):
-        scale = b.abs().max().clamp_min(1.0)
-        torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
+    assert_cpu_matches_torch(out)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -184,8 +203,6 @@ def test_needles_at_every_angle_keep_every_pixel_they_reach(seed):
     of the block (tighter than the disc of its smallest eigenvalue). Needles, 2D Gaussians with axis ratios up to
     60 at every angle and sub-pixel offsets, few overlapping, over a black background: a pixel that a list dropped
     loses at least alpha >= 1/255 of its value, 200x the tolerance. Values and gradients against the reference."""
-    from panorecon.splat.rasterize.torch_backend import rasterize_tiles
-
     g = torch.Generator().manual_seed(seed)
     n, width, height = 80, 61, 45
     theta = torch.rand(n, generator=g) * torch.pi
@@ -200,19 +217,15 @@ def test_needles_at_every_angle_keep_every_pixel_they_reach(seed):
     opac = torch.rand(n, generator=g) * 0.9 + 0.1
     colors = torch.rand(1, n, 3, generator=g)
     depths = torch.rand(1, n, generator=g) + 1
-    out = {}
-    for name, fn in (("torch", rasterize_tiles), ("cpu", cpu_backend.composite)):
-        leaves = [t.clone().requires_grad_(True) for t in (means2d, conics, colors, opac, depths)]
-        img, alpha, depth, _ = fn(*leaves[:5], radii, width, height)
-        (img * torch.linspace(0.5, 1.5, 3)).sum().backward(retain_graph=True)
-        (alpha.sum() + 0.1 * depth.sum()).backward()
-        out[name] = (img.detach(), alpha.detach(), [t.grad for t in leaves])
+    out = composite_both(
+        (means2d, conics, colors, opac, depths),
+        radii,
+        width,
+        height,
+        lambda img, alpha, depth: (img * torch.linspace(0.5, 1.5, 3)).sum() + alpha.sum() + 0.1 * depth.sum(),
+    )
     assert (out["torch"][1] > 0).float().mean() > 0.4, "the needles should cover a good part of the image"
-    torch.testing.assert_close(out["cpu"][0], out["torch"][0], atol=ATOL_VALUE, rtol=RTOL)
-    torch.testing.assert_close(out["cpu"][1], out["torch"][1], atol=ATOL_VALUE, rtol=RTOL)
-    for name, a, b in zip(("means2d", "conics", "colors", "opacities", "depths"), out["cpu"][2], out["torch"][2]):
-        scale = b.abs().max().clamp_min(1.0)
-        torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
+    assert_cpu_matches_torch(out)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -231,18 +244,16 @@ def test_equal_depths_composite_in_id_order(seed):
     colors = torch.rand(1, n, 3, generator=g)
     levels = torch.tensor([-1.0, -0.0, 0.0, 2.0, 2.0])
     depths = levels[torch.randint(0, 5, (1, n), generator=g)]
-    out = {}
-    for name, fn in (("torch", rasterize_tiles), ("cpu", cpu_backend.composite)):
-        leaves = [t.clone().requires_grad_(True) for t in (means2d, conics, colors, opac, depths)]
-        img, alpha, depth, _ = fn(*leaves[:5], radii, width, height)
-        ((img * torch.linspace(0.5, 1.5, 3)).sum() + 0.1 * depth.sum()).backward()
-        out[name] = (img.detach(), [t.grad for t in leaves])
+    out = composite_both(
+        (means2d, conics, colors, opac, depths),
+        radii,
+        width,
+        height,
+        lambda img, alpha, depth: (img * torch.linspace(0.5, 1.5, 3)).sum() + 0.1 * depth.sum(),
+    )
     reversed_ties = rasterize_tiles(means2d.flip(1), conics, colors.flip(1), opac, depths.flip(1), radii, width, height)
     assert (reversed_ties[0] - out["torch"][0]).abs().max() > 0.1, "the scene should depend on the order of ties"
-    torch.testing.assert_close(out["cpu"][0], out["torch"][0], atol=ATOL_VALUE, rtol=RTOL)
-    for name, a, b in zip(("means2d", "conics", "colors", "opacities", "depths"), out["cpu"][1], out["torch"][1]):
-        scale = b.abs().max().clamp_min(1.0)
-        torch.testing.assert_close(a / scale, b / scale, atol=ATOL_GRAD, rtol=RTOL, msg=f"gradient of {name}")
+    assert_cpu_matches_torch(out)
 
 
 @pytest.mark.parametrize("seed", [0, 1])

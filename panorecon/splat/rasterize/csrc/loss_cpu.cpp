@@ -30,6 +30,11 @@ std::array<double, K> chunked_sum(int64_t n, const Fn& fn) {
   return total;
 }
 
+// Whether pixel i counts in the Pearson term: inside the mask (none: all) and both depths finite.
+inline bool counts(const bool* valid, const float* x, const float* y, int64_t i) {
+  return (!valid || valid[i]) && std::isfinite(x[i]) && std::isfinite(y[i]);
+}
+
 void check_pair(const torch::Tensor& x, const torch::Tensor& y, const char* what) {
   TORCH_CHECK(x.dtype() == torch::kFloat32 && y.dtype() == torch::kFloat32, what, ": float32 inputs expected");
   TORCH_CHECK(x.sizes() == y.sizes(), what, ": inputs of one shape expected, got ", x.sizes(), " and ", y.sizes());
@@ -74,13 +79,12 @@ std::vector<torch::Tensor> pearson_forward(torch::Tensor x, torch::Tensor y, tor
   const float *px = x.data_ptr<float>(), *py = y.data_ptr<float>();
   const bool* pv = valid.numel() ? valid.data_ptr<bool>() : nullptr;
   const int64_t N = x.numel();
-  auto ok = [=](int64_t i) { return (!pv || pv[i]) && std::isfinite(px[i]) && std::isfinite(py[i]); };
   const auto s1 = chunked_sum<3>(N, [&](int64_t i, std::array<double, 3>& a) {
-    if (ok(i)) { a[0] += 1.0; a[1] += px[i]; a[2] += py[i]; }
+    if (counts(pv, px, py, i)) { a[0] += 1.0; a[1] += px[i]; a[2] += py[i]; }
   });
   const double n = s1[0], mx = s1[1] / std::max(n, 1.0), my = s1[2] / std::max(n, 1.0);
   const auto s2 = chunked_sum<3>(N, [&](int64_t i, std::array<double, 3>& a) {
-    if (ok(i)) {
+    if (counts(pv, px, py, i)) {
       const double dx = px[i] - mx, dy = py[i] - my;
       a[0] += dx * dx; a[1] += dy * dy; a[2] += dx * dy;
     }
@@ -108,8 +112,7 @@ torch::Tensor pearson_backward(torch::Tensor x, torch::Tensor y, torch::Tensor v
   const double inv_root = 1.0 / std::sqrt(sxx * syy), corr_sxx = corr / sxx;
   at::parallel_for(0, x.numel(), 16384, [&](int64_t b, int64_t e) {
     for (int64_t i = b; i < e; ++i)
-      if ((!pv || pv[i]) && std::isfinite(px[i]) && std::isfinite(py[i]))
-        po[i] = (float)(-g * ((py[i] - my) * inv_root - (px[i] - mx) * corr_sxx));
+      if (counts(pv, px, py, i)) po[i] = (float)(-g * ((py[i] - my) * inv_root - (px[i] - mx) * corr_sxx));
   });
   return out;
 }
