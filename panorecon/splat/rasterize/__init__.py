@@ -24,10 +24,12 @@ def resolve_backend(backend: str, cuda_tensors: bool = False) -> str:
     the C++ kernel is available, else 'torch'. A named backend that cannot serve the tensors is refused."""
     if backend not in BACKENDS:
         raise ValueError(f"backend={backend!r}: expected one of {BACKENDS}")
-    if backend == "cpu" and not cpu_backend.available():
-        raise RuntimeError("backend='cpu' asked for, but the C++ rasterizer could not be built (see the log)")
     if backend == "cpu" and cuda_tensors:
         raise RuntimeError("backend='cpu' renders CPU tensors; for CUDA tensors use backend 'gsplat' or 'torch'")
+    if backend == "cpu" and not cpu_backend.available():
+        raise RuntimeError(
+            f"backend='cpu' asked for, but the C++ rasterizer could not be built ({cpu_backend.unavailable_reason()})"
+        )
     if backend == "gsplat" and not gsplat_backend.available():
         raise RuntimeError(
             f"backend='gsplat' asked for, but it cannot run here: {gsplat_backend.unavailable_reason()} "

@@ -85,13 +85,28 @@ def load(verbose: bool = False):
                 verbose=verbose,
             )
     except Exception as e:  # a missing compiler or headers: fall back to the reference
-        _error = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+        _error = build_failure(e)
         log.warning("cpu rasterizer unavailable (%s); the torch reference backend runs instead", _error)
     return _module
 
 
+def build_failure(e: Exception) -> str:
+    """One line for a failed build: the exception's first line without the compiler command that ninja echoes
+    after it, and the compiler's first ``error:`` line (file, line and what was wrong), when there is one."""
+    lines = str(e).splitlines()
+    head = f"{type(e).__name__}: {lines[0].split(': [', 1)[0] if lines else ''}"
+    first_error = next((ln.strip() for ln in lines if "error:" in ln), None)
+    return f"{head}; {first_error}" if first_error else head
+
+
 def available() -> bool:
     return load() is not None
+
+
+def unavailable_reason() -> str | None:
+    """Why the extension could not be built here (one line, as logged), or None when it loads."""
+    load()
+    return _error
 
 
 class _Project(torch.autograd.Function):

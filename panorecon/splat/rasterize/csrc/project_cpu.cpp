@@ -38,7 +38,7 @@ struct Camera {
 template <typename V> inline V max_of(V a, V b) { return (a < b) ? b : a; }
 template <typename V> inline V min_of(V a, V b) { return (b < a) ? b : a; }
 template <typename V, typename S> inline V splat(S x) {  // x as V's element type, in every lane
-  return V{} + static_cast<std::remove_cvref_t<decltype(V{}[0])>>(x);  // 0 + x == x exactly for x != -0
+  return V{} + static_cast<std::remove_cv_t<std::remove_reference_t<decltype(V{}[0])>>>(x);  // 0 + x == x exactly for x != -0
 }
 template <typename V> inline V sqrt_of(V x) {
   for (size_t i = 0; i < sizeof(V) / sizeof(x[0]); ++i) x[i] = std::sqrt(x[i]);
