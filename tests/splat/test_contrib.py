@@ -28,7 +28,7 @@ def scene(n, seed, dtype=torch.float32):
     quats = torch.randn(n, 4, generator=g)
     scales = torch.rand(n, 3, generator=g) * 0.2 + 0.02
     opac = torch.rand(n, generator=g) * 0.98 + 0.01
-    opac[:3] = 1.0  # alpha clamped at 0.99: deep occlusion, the T stop is reached
+    opac[:3] = 1.0  # alpha clamped at 0.999: deep occlusion, the T stop is reached
     rgb = torch.rand(n, 3, generator=g)
     Ks = torch.tensor(intrinsics_from_fov(W, H, 70.0))[None].repeat(2, 1, 1)
     Vs = torch.stack(

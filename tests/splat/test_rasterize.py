@@ -1,4 +1,4 @@
-"""The pure-PyTorch reference rasterizer: analytic cases, culling, gradcheck, SH."""
+"""The pure-PyTorch reference rasterizer: analytic cases, the alpha cap, culling, gradcheck, SH."""
 
 import math
 
@@ -9,8 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-from panorecon.splat.rasterize import project_gaussians, quat_to_rotmat, rasterize
+from panorecon.splat.rasterize import cpu_backend, project_gaussians, quat_to_rotmat, rasterize
 from panorecon.splat.rasterize.sh import C0, sh_basis
+from panorecon.splat.rasterize.torch_backend import ALPHA_MAX
 
 
 def camera(width=32, height=24, dtype=torch.float64):
@@ -69,6 +70,32 @@ def test_single_isotropic_gaussian_matches_the_analytic_2d_gaussian():
     np.testing.assert_allclose(alpha[0, ..., 0].numpy(), expect, atol=1e-9)
     np.testing.assert_allclose(depth[0, ..., 0].numpy(), expect * z, atol=1e-9)
     assert meta["radii"][0, 0] == math.ceil(3 * math.sqrt(var))
+
+
+def opaque_pair(dtype):
+    """Two opaque (o = 1) Gaussians on the optical axis, red at z = 4 and green at z = 6, wide enough (2 m,
+    ~28 px) that o exp(-sigma) > 0.9996 at the four centre pixels: alpha is the cap there."""
+    means = torch.tensor([[4.0, 0.0, 0.0], [6.0, 0.0, 0.0]], dtype=dtype)
+    quats = torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=dtype)
+    scales = torch.full((2, 3), 2.0, dtype=dtype)
+    return means, quats, scales, torch.ones(2, dtype=dtype), torch.eye(3, dtype=dtype)[:2]
+
+
+@pytest.mark.parametrize("backend", ["torch", "cpu"])
+def test_an_opaque_gaussian_is_capped_at_gsplats_alpha_and_hides_what_is_behind(backend):
+    """alpha = min(0.999, o exp(-sigma)), gsplat's cap (the original 3DGS kernels cap at 0.99); the Gaussian
+    behind would take T from 0.001 to <= 1e-4, so blending stops before it: no green at all."""
+    if backend == "cpu" and not cpu_backend.available():
+        pytest.skip("the C++ rasterizer could not be built here")
+    dtype = torch.float64 if backend == "torch" else torch.float32
+    V, K = camera(64, 64, dtype)
+    img, alpha, _, _ = rasterize(*opaque_pair(dtype), V, K, 64, 64, backend=backend)
+    centre = (0, slice(31, 33), slice(31, 33))
+    expect = torch.full((2, 2), ALPHA_MAX, dtype=dtype)
+    assert ALPHA_MAX == 0.999
+    torch.testing.assert_close(alpha[centre][..., 0], expect, rtol=0, atol=0)
+    torch.testing.assert_close(img[centre][..., 0], expect, rtol=0, atol=0)
+    assert (img[centre][..., 1] == 0).all()
 
 
 def test_behind_near_and_off_image_gaussians_are_culled():

@@ -46,7 +46,7 @@ def random_scene(n, seed, extremes=True):
         scales[3] = torch.tensor([1e3, 1e3, 1e3])  # huge
         quats[4] = 0.0  # zero-norm quaternion
         scales[5] = torch.tensor([1e-6, 0.3, 0.3])  # a flat disc
-        opac[6] = 1.0  # alpha clamped at 0.99 near its centre
+        opac[6] = 1.0  # alpha clamped at 0.999 near its centre
     return means, quats, scales, opac, sh
 
 

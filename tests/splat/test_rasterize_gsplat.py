@@ -7,6 +7,8 @@ import torch
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
 from panorecon.splat.rasterize import cpu_backend, gsplat_backend, rasterize, resolve_backend
 
+from .test_rasterize import camera, opaque_pair
+
 needs_gsplat = pytest.mark.skipif(not gsplat_backend.available(), reason="needs CUDA and the gsplat package")
 W, H = 64, 48
 
@@ -81,6 +83,25 @@ def test_gsplat_matches_torch_values_and_gradients():
     for a, b in zip(out["gsplat"], out["torch"]):
         scale = b.abs().max().clamp_min(1.0)
         torch.testing.assert_close(a / scale, b / scale, atol=1e-3, rtol=1e-3)
+
+
+@pytest.mark.cuda
+@needs_gsplat
+def test_gsplat_caps_an_opaque_gaussians_alpha_as_the_reference_does():
+    """Opaque Gaussians (o = 1, o exp(-sigma) > 0.9996 at the centre pixels): gsplat's alpha there is its cap,
+    0.999, and the reference's is the same (the random scenes above keep o < 0.99, below either cap)."""
+    V, K = camera(64, 64, torch.float32)
+    out = {
+        backend: rasterize(
+            *(t.to(dev) for t in opaque_pair(torch.float32)), V.to(dev), K.to(dev), 64, 64, backend=backend
+        )
+        for backend, dev in (("torch", "cpu"), ("gsplat", "cuda"))
+    }
+    centre = (0, slice(31, 33), slice(31, 33))
+    for k in (0, 1):  # image, alpha
+        gs, ref = out["gsplat"][k].cpu(), out["torch"][k]
+        torch.testing.assert_close(gs[centre], ref[centre], atol=1e-6, rtol=0)
+    assert torch.allclose(out["gsplat"][1].cpu()[centre], torch.tensor(0.999), atol=1e-6, rtol=0)
 
 
 @pytest.mark.cuda

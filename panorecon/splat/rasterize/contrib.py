@@ -56,7 +56,7 @@ def contributions_from_pairs(
         order = order[torch.argsort(ray[order], stable=True)]
         ray, img, pix, gid = ray[order], image_ids[order], pixel_ids[order], gaussian_ids[order]
         al = pair_alphas(means2d, conics, opacities, img, pix, gid, width)
-        log_keep = torch.log1p(-al)  # alpha <= 0.99: finite
+        log_keep = torch.log1p(-al)  # alpha <= 0.999: finite
         incl = torch.cumsum(log_keep, 0)
         start = torch.ones_like(ray, dtype=torch.bool)
         start[1:] = ray[1:] != ray[:-1]

@@ -4,7 +4,7 @@ Installed with ``pip install 'panorecon[cuda]'``; its CUDA kernels are compiled 
 ``python -m panorecon.splat.rasterize.build --cuda`` (or on first use). ``available()`` means built and
 runnable: CUDA is present, gsplat imports and a one-Gaussian render ran. Conventions shared with the
 reference (``projection.py``, ``torch_backend.py``): OpenCV world-to-camera viewmats, pixel centres at +0.5, the
-EWA low-pass eps2d, alpha = min(0.99, o exp(-sigma)) skipped below 1/255, blending stopped before T reaches
+EWA low-pass eps2d, alpha = min(0.999, o exp(-sigma)) skipped below 1/255, blending stopped before T reaches
 1e-4; ``render_mode="RGB+D"`` gives the accumulated z that our ``depth`` is.
 
 Where the two differ (gsplat 1.5, ``ProjectionEWA3DGSFused.cu``): the reference's radius is

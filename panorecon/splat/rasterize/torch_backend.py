@@ -1,7 +1,7 @@
 """Pure-PyTorch tiled rasterizer: the obviously-correct reference, differentiable by autograd.
 
 Per camera and per 16x16 tile, the Gaussians whose 3-sigma square touches the tile are sorted front to back
-by depth and composited: alpha_i = min(0.99, o_i exp(-sigma_i)), sigma_i = 0.5 d^T conic d at pixel centres;
+by depth and composited: alpha_i = min(0.999, o_i exp(-sigma_i)), sigma_i = 0.5 d^T conic d at pixel centres;
 alpha < 1/255 or sigma < 0 contributes nothing; blending stops before the Gaussian that would bring the
 transmittance to 1e-4 or below (gsplat's rules). Works in the dtype of its inputs (float64 for gradcheck).
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 
 ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
+ALPHA_MAX = 0.999  # gsplat's cap (RasterizeToPixels3DGSFwd.cu); the original 3DGS kernels use 0.99
 T_MIN = 1e-4
 
 

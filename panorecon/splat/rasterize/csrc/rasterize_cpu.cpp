@@ -1,5 +1,5 @@
 // Tiled Gaussian compositing on the CPU: forward and hand-written backward, parallel over tiles.
-// Same rules as the PyTorch reference (torch_backend.py): pixel centres at +0.5; alpha = min(0.99, o exp(-sigma));
+// Same rules as the PyTorch reference (torch_backend.py): pixel centres at +0.5; alpha = min(0.999, o exp(-sigma));
 // alpha < 1/255 or sigma < 0 skipped; stop before the Gaussian that would take T to <= 1e-4.
 // Layout of the work: the visible pairs are sorted by depth once (radix sort), then binned to 16x16 tiles in that
 // order (counting sort), so each tile's list is front to back; a tile's Gaussians are gathered into contiguous
@@ -17,7 +17,7 @@
 
 namespace {
 constexpr float ALPHA_MIN = 1.0f / 255.0f;
-constexpr float ALPHA_MAX = 0.99f;
+constexpr float ALPHA_MAX = 0.999f;  // gsplat's cap (the original 3DGS kernels use 0.99)
 constexpr float T_MIN = 1e-4f;
 
 struct Bins {
@@ -439,7 +439,7 @@ struct BlockOut {  // per lane: transmittance, rgb, accumulated z, entries of th
 // model ~1.09x forward and ~1.05x backward (batches of 8, 16 and 32 within the noise of each other; docs/benchmarks.md).
 constexpr int64_t ENTRY_BATCH = 32;
 
-// alpha of list entries [k0, k0 + nb) in every lane, A[j] for entry k0 + j: min(0.99, o exp(-sigma)) where
+// alpha of list entries [k0, k0 + nb) in every lane, A[j] for entry k0 + j: min(0.999, o exp(-sigma)) where
 // sigma >= 0 and it is >= 1/255, else 0 (a NaN sigma gives 0); with WITH_VIS also exp(-sigma) itself, in E[j]
 template <bool WITH_VIS>
 PR_INLINE void batch_alphas(const TileGaussians& G, const int32_t* list, int64_t k0, int64_t nb, const v8f* px,
