@@ -122,6 +122,17 @@ def test_a_failed_build_names_the_compilers_first_error(tmp_path, monkeypatch, c
         resolve_backend("cpu", cuda_tensors=True)
 
 
+def test_a_missing_compiler_is_named():
+    failure = RuntimeError(
+        "Error building extension 'x': [1/2] /nonexistent/g++ -c module.cpp -o module.o\nFAILED: module.o\n"
+        "/nonexistent/g++ -c module.cpp -o module.o\n/bin/sh: 1: /nonexistent/g++: not found\n"
+        "ninja: build stopped: subcommand failed.\n"
+    )
+    assert cpu_backend.build_failure(failure) == (
+        "RuntimeError: Error building extension 'x'; /bin/sh: 1: /nonexistent/g++: not found"
+    )
+
+
 def test_the_sources_parse_as_cxx17(tmp_path):
     """torch's cpp_extension compiles with -std=c++17 up to torch 2.11 (c++20 from later releases): a C++20-only
     name in csrc/ (std::remove_cvref_t, found on a GPU machine with torch 2.11 and GCC 13) breaks the build there

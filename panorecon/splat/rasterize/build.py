@@ -4,7 +4,7 @@ from any training time)."""
 
 import sys
 
-from .cpu_backend import build_dir, load
+from .cpu_backend import build_dir, load, unavailable_reason
 
 if __name__ == "__main__":
     if "--cuda" in sys.argv[1:]:
@@ -15,8 +15,8 @@ if __name__ == "__main__":
             sys.exit(0)
         print(f"panorecon gsplat backend: NOT available ({gsplat_backend.unavailable_reason()})")
         sys.exit(1)
-    ok = load(verbose=False) is not None
-    print(
-        f"panorecon cpu rasterizer: {'built' if ok else 'NOT built (the torch backend will be used)'} in {build_dir()}"
-    )
+    if load(verbose=False) is not None:
+        print(f"panorecon cpu rasterizer: built in {build_dir()}")
+    else:
+        print(f"panorecon cpu rasterizer: NOT built in {build_dir()}: {unavailable_reason()}; the torch backend runs")
     sys.exit(0)

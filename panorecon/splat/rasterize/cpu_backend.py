@@ -92,10 +92,11 @@ def load(verbose: bool = False):
 
 def build_failure(e: Exception) -> str:
     """One line for a failed build: the exception's first line without the compiler command that ninja echoes
-    after it, and the compiler's first ``error:`` line (file, line and what was wrong), when there is one."""
+    after it, and the first line that says what went wrong, when there is one: the compiler's ``error:`` (file,
+    line, what) or the shell's ``not found`` (no compiler at ``$CXX``)."""
     lines = str(e).splitlines()
     head = f"{type(e).__name__}: {lines[0].split(': [', 1)[0] if lines else ''}"
-    first_error = next((ln.strip() for ln in lines if "error:" in ln), None)
+    first_error = next((ln.strip() for ln in lines if "error:" in ln or ln.endswith("not found")), None)
     return f"{head}; {first_error}" if first_error else head
 
 
