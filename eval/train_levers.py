@@ -7,6 +7,10 @@ the best history sample and the history as (iteration, seconds, held-out PSNR)).
     python eval/train_levers.py OUT [key=value ...] [--threads N]
     python eval/train_levers.py out/ref10k iters=10000 init_pixels_per_point=0 --threads 1
     python eval/train_levers.py out/beach20 disocclusion_fill_visits=0 --views 20 --scene beach
+    python eval/train_levers.py out/erp --teacher-views erp
+
+``--teacher-views erp`` gives the simulated teacher its views' true distance sampled from the ERP (as for a
+``panorecon render`` folder or a real panorama with ``--depth``) instead of rendered by the synthetic world.
 
 The cloud is the one ``panorecon train`` would start from (``run_source`` with the same fusion settings);
 held-out cameras are placed in the cloud's scale exactly as ``panorecon train`` places them.
@@ -17,6 +21,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+
+
+class ErpTeacherWorld:
+    """A synthetic scene's world that renders held-out views as before but refuses the teacher's views
+    (``can_render``), so ``teachers.base.true_view_distance`` samples them from the scene's ERP distance."""
+
+    def __init__(self, world):
+        self.world = world
+
+    def can_render(self, camera) -> bool:
+        return False
+
+    def __getattr__(self, name):
+        return getattr(self.world, name)
 
 
 def main(argv=None) -> dict:
@@ -42,6 +60,12 @@ def main(argv=None) -> dict:
         default="teacher",
         help="the Pearson term's depth: the teacher's per-view maps or the fused cloud's ERP depth seen by each view",
     )
+    ap.add_argument(
+        "--teacher-views",
+        choices=("render", "erp"),
+        default="render",
+        help="the simulated teacher's true view distance: rendered by the synthetic world, or sampled from the ERP",
+    )
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -53,6 +77,8 @@ def main(argv=None) -> dict:
             ap.error(f"{item!r}: {key!r} is not a TrainConfig field ({', '.join(types)})")
         setattr(cfg, key, types[key](value))
     scene = load_scene(args.scene, 512)
+    if args.teacher_views == "erp":
+        scene = dataclasses.replace(scene, world=ErpTeacherWorld(scene.world))
     pc, report = run_source(scene, "fibonacci", args.teacher, args.views, fusion_config_for(torch.device("cpu")))
     if args.depth_target == "fused":
         from panorecon.geometry import erp_to_perspective
@@ -78,6 +104,7 @@ def main(argv=None) -> dict:
         "scene": args.scene,
         "overrides": args.overrides,
         "teacher": args.teacher,
+        "teacher_views": args.teacher_views,
         "heldout_psnr": m["held-out"]["psnr"],
         "train_s": m["seconds"]["train"],
         "gaussians": m["gaussians"],
