@@ -163,6 +163,11 @@ def composite_both(gaussians, radii, width, height, loss):
     return out
 
 
+def loss_of_every_output(img, alpha, depth):
+    """A scalar that every output reaches, the colour channels weighted apart (for ``composite_both``)."""
+    return (img * torch.linspace(0.5, 1.5, 3)).sum() + alpha.sum() + 0.1 * depth.sum()
+
+
 def assert_cpu_matches_torch(out):
     """Image, alpha and every gradient of ``composite_both``'s two sides agree (gradients relative to the largest)."""
     torch.testing.assert_close(out["cpu"][0], out["torch"][0], atol=ATOL_VALUE, rtol=RTOL)
@@ -191,7 +196,7 @@ def test_long_lists_stop_inside_a_later_batch(opacity):
         radii,
         width,
         height,
-        lambda img, alpha, depth: (img * torch.linspace(0.5, 1.5, 3)).sum() + alpha.sum() + 0.1 * depth.sum(),
+        loss_of_every_output,
     )
     assert (out["torch"][1] > 1 - 2e-4).float().mean() > 0.9, "most pixels should stop before their list ends"
     assert_cpu_matches_torch(out)
@@ -222,7 +227,7 @@ def test_needles_at_every_angle_keep_every_pixel_they_reach(seed):
         radii,
         width,
         height,
-        lambda img, alpha, depth: (img * torch.linspace(0.5, 1.5, 3)).sum() + alpha.sum() + 0.1 * depth.sum(),
+        loss_of_every_output,
     )
     assert (out["torch"][1] > 0).float().mean() > 0.4, "the needles should cover a good part of the image"
     assert_cpu_matches_torch(out)
