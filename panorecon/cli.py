@@ -673,6 +673,12 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--densify-from", type=T.STEP, default=None, help="step of the first clone/split (default 100; 3DGS: 500)"
     )
+    tr.add_argument(
+        "--w-depth",
+        type=T.LOSS_WEIGHT,
+        default=None,
+        help="weight of the Pearson depth term against the teacher's view depth (default: TrainConfig.w_depth)",
+    )
     tr.add_argument("--seed", type=T.SEED, default=None)
     tr.add_argument("--no-progress", action="store_true")
     tr.add_argument(

@@ -113,6 +113,7 @@ STEP = int_in(0, 10_000_000, "step")
 POSITIVE_FLOAT = float_in(1e-12, None, "positive number")
 FINITE_FLOAT = float_in(None, None, "number")
 FRACTION = float_in(0.0, 1.0, "fraction")
+LOSS_WEIGHT = float_in(0.0, None, "loss weight")
 
 
 def _read_only(path: Path) -> bool:

@@ -49,6 +49,8 @@ def test_render_gt_cloud_inspect(tmp_path, capsys):
         (["render", "missing.png", "--out", "X"], "missing.png: no such file"),
         (["gt-cloud", "py360-demo", "--out", "X/c.ply"], "has no depth"),
         (["inspect", "nothing.ply", "--screenshot", "X/s.png"], "nothing.ply"),
+        (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--w-depth", "-0.1"], "--w-depth: -0.1 is out"),
+        (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--w-depth", "nan"], "--w-depth: nan is out"),
     ],
 )
 def test_bad_input_gives_one_clear_error_and_writes_nothing(tmp_path, monkeypatch, capsys, argv, needle):
@@ -169,6 +171,8 @@ def test_train_command(tmp_path, capsys):
         "32",
         "--labels",
         "16",
+        "--w-depth",
+        "0.3",
         "--no-progress",
         "--out",
         str(tmp_path / "t"),
@@ -176,6 +180,7 @@ def test_train_command(tmp_path, capsys):
     assert main(argv) == 0
     m = json.loads((tmp_path / "t" / "metrics.json").read_text())
     assert m["iterations"] == 20 and "psnr" in m["pseudo-label"] and "psnr" in m["held-out"]
+    assert m["config"]["w_depth"] == 0.3
     assert "pseudo-label PSNR" in capsys.readouterr().out
     report = json.loads((tmp_path / "t" / "fibonacci_report.json").read_text())
     assert report["views"] == TRAIN_VIEWS["fibonacci"] == 40  # train's default, not the source's 20

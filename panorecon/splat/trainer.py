@@ -342,6 +342,9 @@ def train(
         )
     if not 0 < cfg.disocclusion_opacity < 1:
         raise ValueError(f"disocclusion_opacity={cfg.disocclusion_opacity!r}: expected an opacity in (0, 1)")
+    for name in ("w_l1", "w_ssim", "w_depth"):
+        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0):
+            raise ValueError(f"{name}={getattr(cfg, name)!r}: expected a finite loss weight >= 0")
     if not 0 <= cfg.disocclusion_fill_deg <= 180:
         raise ValueError(f"disocclusion_fill_deg={cfg.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
     out = Path(out_dir)

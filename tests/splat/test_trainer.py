@@ -108,6 +108,10 @@ def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
         ("disocclusion_fill_visits", -1.0),
         ("disocclusion_fill_visits", float("inf")),
         ("disocclusion_opacity", 0.0),
+        ("w_depth", -0.1),
+        ("w_depth", float("nan")),
+        ("w_ssim", float("inf")),
+        ("w_l1", -1.0),
     ],
 )
 def test_bad_trainer_settings_are_one_clear_error_before_anything_is_written(setup, tmp_path, field, value):
@@ -479,3 +483,27 @@ def test_a_half_resolution_render_is_the_2x2_mean_of_the_full_one():
     assert (render(half, 32) - ref).abs().mean() < 0.01  # the finer sampling's blur only
     assert (centroid(render(half, 32)) - centroid(ref)).abs().max() < 0.03  # in pixels of the half-size view
     assert (centroid(render(shifted, 32)) - centroid(ref)).abs().min() > 0.2
+
+
+def test_the_depth_weight_pulls_the_rendered_depth_toward_the_teachers(setup, tmp_path):
+    """TrainConfig.w_depth reaches the loss: against a teacher whose depth maps are upside down (so the photometric
+    terms disagree with it), a run with a strong depth weight renders depth that correlates with the teacher's
+    more than a run without the term."""
+    scene, pc, depth_fn = setup
+    flipped = lambda cams: [np.ascontiguousarray(d[::-1]) for d in depth_fn(cams)]  # noqa: E731
+
+    def correlation(w_depth: float) -> float:
+        c = cfg(iters=40, res=16, labels=12, heldout=0, checkpoint_every=0, history_every=0, w_depth=w_depth)
+        train(scene, pc, c, tmp_path / f"w{w_depth}", flipped, progress=False)
+        model = load_ply(tmp_path / f"w{w_depth}" / "point_cloud.ply")
+        views = trainer_mod.make_pseudo_labels(scene, c.labels, c.res, c.fov_deg, c.layout, flipped)
+        rs = []
+        with torch.no_grad():
+            for v in views:
+                _, alpha, depth, _ = trainer_mod._render(model, [v], c, 0, "cpu")
+                z = (depth / alpha.clamp_min(1e-6))[0, ..., 0].flatten().double()
+                t = torch.from_numpy(v.depth).flatten().double()
+                rs.append(float(torch.corrcoef(torch.stack([z, t]))[0, 1]))
+        return float(np.mean(rs))
+
+    assert correlation(2.0) > correlation(0.0) + 0.05
