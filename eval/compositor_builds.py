@@ -17,6 +17,10 @@ forward (with contributions unless ``--no-contrib``) and backward over views and
 largest |difference| of every output and gradient (relative to the largest magnitude for gradients).
 ``mean_list_end``: the entries of its 4x4 block's list a pixel went through, on average (the kernel's ``last``): the
 list entries visited per pixel; ``visible_pairs_per_view``: the Gaussians with radius > 0 in a view, on average.
+With ``--lane-use`` (slow: NumPy over every block), from the first repeat of each view: ``composited_per_pixel``,
+the (pixel, entry) pairs that blend (alpha >= 1/255 before the pixel's end) per pixel, and ``backward_lane_use``,
+those pairs over the lanes the backward evaluates (16 per entry up to its block's largest end); the forward walks
+a block's list at least that far.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ def main(argv=None) -> dict:
     ap.add_argument(
         "--threads", type=int, default=1, help="intra-op threads; above 1, wall ms (CPU seconds add up the threads)"
     )
+    ap.add_argument("--lane-use", action="store_true", help="count the lanes that blend (module docstring)")
     ap.add_argument("--save", default=None, help="write the outputs here (torch.save)")
     ap.add_argument("--against", default=None, help="compare with outputs saved by another checkout")
     args = ap.parse_args(argv)
@@ -67,6 +72,7 @@ def main(argv=None) -> dict:
     n_args = ext.backward.__doc__.splitlines()[0].count("arg")
     n_lists = 4 if n_args == 18 else 2
     fwd, bwd, list_ends, visible, outputs = [], [], [], [], {"forward": [], "backward": []}
+    composited = lanes = pixels = 0
     for V, K in views:
         m2d, con, dep, radii = ext.project_forward(means, quats, scales, V, K, size, size, 0.01, 1e10, 0.3)
         for _ in range(args.repeats):
@@ -80,6 +86,9 @@ def main(argv=None) -> dict:
             bwd.append(t2 - t1)
         outputs["forward"] += [f[k] for k in (0, 1, 2)] + ([] if args.no_contrib else f[-3:])
         list_ends.append(float(f[4].double().mean()))
+        if args.lane_use:
+            c, n = lane_use(m2d[0], con[0], opac, f, size)
+            composited, lanes, pixels = composited + c, lanes + n, pixels + size * size
         visible.append(int((radii > 0).sum()))
         outputs["backward"] += list(b)
     out = {
@@ -94,6 +103,9 @@ def main(argv=None) -> dict:
         "mean_list_end": statistics.mean(list_ends),
         "visible_pairs_per_view": statistics.mean(visible),
     }
+    if args.lane_use:
+        out["composited_per_pixel"] = composited / pixels
+        out["backward_lane_use"] = composited / lanes
     if args.against:
         other = torch.load(args.against)
         out["max_abs_difference_forward"] = [
@@ -107,6 +119,34 @@ def main(argv=None) -> dict:
         torch.save(outputs, args.save)
     print(json.dumps(out))
     return out
+
+
+def lane_use(m2d, con, opac, f, size: int, tile: int = 16, block: int = 4) -> tuple[int, int]:
+    """-> (pairs composited, lanes the backward evaluates) of one camera's forward outputs ``f`` (image, alpha, depth,
+    T, last, offsets, ids, block_start, block_pos, ...): alpha = min(0.999, o exp(-sigma)) at each pixel centre of a
+    block for its list entries before the pixel's end (the kernel's rules, in float64)."""
+    import numpy as np
+
+    if size % tile:
+        raise ValueError(f"--lane-use: the view size {size} is not a multiple of the {tile}-pixel tile")
+    last, offsets, ids, starts, pos = (t.numpy() for t in f[4:9])
+    m, q, o = m2d.double().numpy(), con.double().numpy(), opac.double().numpy()
+    per_side, bpt = tile // block, (tile // block) ** 2
+    composited = lanes = 0
+    for t in range(len(offsets) - 1):
+        ty, tx = divmod(t, size // tile)
+        for b in range(bpt):
+            entries = ids[offsets[t] + pos[starts[t * bpt + b] : starts[t * bpt + b + 1]]]
+            i0, j0 = ty * tile + b // per_side * block, tx * tile + b % per_side * block
+            ends = last[0, i0 : i0 + block, j0 : j0 + block].reshape(-1, 1)
+            py, px = (a.reshape(-1, 1) + 0.5 for a in np.mgrid[i0 : i0 + block, j0 : j0 + block])
+            dx, dy = px - m[entries, 0], py - m[entries, 1]
+            sigma = 0.5 * (q[entries, 0] * dx * dx + q[entries, 2] * dy * dy) + q[entries, 1] * dx * dy
+            alpha = np.minimum(0.999, o[entries] * np.exp(-sigma))
+            k = np.arange(len(entries))[None]
+            composited += int(((k < ends) & (sigma >= 0) & (alpha >= 1 / 255)).sum())
+            lanes += int(ends.max()) * block * block
+    return composited, lanes
 
 
 if __name__ == "__main__":
