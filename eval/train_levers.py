@@ -12,8 +12,7 @@ the best history sample and the history as (iteration, seconds, held-out PSNR)).
 ``--threads`` is part of a run's identity: the compositor's backward (at least) sums per-thread gradient
 buffers, so one and two threads round differently and follow different sample paths from the first steps (two
 threads, torch's default here, follow ``panorecon train``'s: checked over 200 steps); the machine's load changes
-no history. Compare
-levers at one thread count.
+no history. Compare levers at one thread count.
 
 ``--teacher-views erp`` gives the simulated teacher its views' true distance sampled from the ERP (as for a
 ``panorecon render`` folder or a real panorama with ``--depth``) instead of rendered by the synthetic world.
