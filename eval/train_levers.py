@@ -14,6 +14,9 @@ buffers, so one and two threads round differently and follow different sample pa
 threads, torch's default here, follow ``panorecon train``'s: checked over 200 steps); the machine's load changes
 no history. Compare levers at one thread count.
 
+``--heldout-seed S`` draws the held-out views with seed S whatever ``seed=`` the training takes, so that training
+seeds (label order, splits) are compared on the same views: the spread of one setting's plateau between paths.
+
 ``--teacher-views erp`` gives the simulated teacher its views' true distance sampled from the ERP (as for a
 ``panorecon render`` folder or a real panorama with ``--depth``) instead of rendered by the synthetic world.
 
@@ -24,6 +27,7 @@ held-out cameras are placed in the cloud's scale exactly as ``panorecon train`` 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 
@@ -40,6 +44,20 @@ class ErpTeacherWorld:
 
     def __getattr__(self, name):
         return getattr(self.world, name)
+
+
+@contextlib.contextmanager
+def heldout_views_seeded(seed: int | None):
+    """Within it, the trainer draws its held-out views with ``seed`` instead of the run's (None: unchanged)."""
+    from panorecon.splat import trainer
+
+    draw = trainer.make_heldout_views
+    if seed is not None:
+        trainer.make_heldout_views = lambda scene, n, size, fov, _seed: draw(scene, n, size, fov, seed)
+    try:
+        yield
+    finally:
+        trainer.make_heldout_views = draw
 
 
 def main(argv=None) -> dict:
@@ -71,6 +89,7 @@ def main(argv=None) -> dict:
         default="render",
         help="the simulated teacher's true view distance: rendered by the synthetic world, or sampled from the ERP",
     )
+    ap.add_argument("--heldout-seed", type=int, default=None, help="seed of the held-out views (default: seed=)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -94,22 +113,24 @@ def main(argv=None) -> dict:
         ]
     else:
         depth_fn = teacher_depth_fn(scene, args.teacher)
-    m = train(
-        scene,
-        pc,
-        cfg,
-        args.out,
-        depth_fn,
-        progress=False,
-        device="cpu",
-        heldout_scale=cloud_scale(report),
-    )
+    with heldout_views_seeded(args.heldout_seed):
+        m = train(
+            scene,
+            pc,
+            cfg,
+            args.out,
+            depth_fn,
+            progress=False,
+            device="cpu",
+            heldout_scale=cloud_scale(report),
+        )
     row = {
         "out": args.out,
         "scene": args.scene,
         "overrides": args.overrides,
         "teacher": args.teacher,
         "teacher_views": args.teacher_views,
+        "heldout_seed": cfg.seed if args.heldout_seed is None else args.heldout_seed,
         "heldout_psnr": m["held-out"]["psnr"],
         "train_s": m["seconds"]["train"],
         "gaussians": m["gaussians"],

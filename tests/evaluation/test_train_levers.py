@@ -1,5 +1,6 @@
 """eval/train_levers.py's ``--teacher-views erp``: the simulated teacher's view distance comes from the ERP (as
-for a render folder), while held-out views are still rendered by the world."""
+for a render folder), while held-out views are still rendered by the world; ``--heldout-seed``: the held-out views
+of one seed whatever the training's."""
 
 import dataclasses
 import importlib.util
@@ -27,3 +28,18 @@ def test_erp_teacher_views_are_sampled_from_the_erp_and_heldout_views_still_rend
     assert not np.array_equal(sampled, rendered)  # the world's render is finer than the 128-wide ERP
     np.testing.assert_array_equal(erp_scene.world.render_view(cam).rgb, scene.world.render_view(cam).rgb)
     assert erp_scene.world.free_space_radius() == scene.world.free_space_radius()
+
+
+def test_heldout_seed_fixes_the_views_whatever_the_runs_seed():
+    from panorecon.splat import trainer
+    from panorecon.splat.labels import make_heldout_views
+
+    scene = load_scene("bedroom", 128)
+    ref = make_heldout_views(scene, 2, 16, 60.0, 0)
+    with script.heldout_views_seeded(0):
+        fixed = trainer.make_heldout_views(scene, 2, 16, 60.0, 5)
+    own = trainer.make_heldout_views(scene, 2, 16, 60.0, 5)  # restored on exit
+    for a, b in zip(ref, fixed):
+        np.testing.assert_array_equal(a.camera.viewmat, b.camera.viewmat)
+        np.testing.assert_array_equal(a.rgb, b.rgb)
+    assert not np.array_equal(own[0].camera.viewmat, ref[0].camera.viewmat)
