@@ -17,7 +17,7 @@ forward (with contributions unless ``--no-contrib``) and backward over views and
 largest |difference| of every output and gradient (relative to the largest magnitude for gradients).
 ``mean_list_end``: the entries of its 4x4 block's list a pixel went through, on average (the kernel's ``last``): the
 list entries visited per pixel; ``visible_pairs_per_view``: the Gaussians with radius > 0 in a view, on average.
-With ``--lane-use`` (slow: NumPy over every block), from the first repeat of each view: ``composited_per_pixel``,
+With ``--lane-use`` (slow: a loop over every block), from the first repeat of each view: ``composited_per_pixel``,
 the (pixel, entry) pairs that blend (alpha >= 1/255 before the pixel's end) per pixel, and ``backward_lane_use``,
 those pairs over the lanes the backward evaluates (16 per entry up to its block's largest end); the forward walks
 a block's list at least that far.
@@ -123,28 +123,28 @@ def main(argv=None) -> dict:
 
 def lane_use(m2d, con, opac, f, size: int, tile: int = 16, block: int = 4) -> tuple[int, int]:
     """-> (pairs composited, lanes the backward evaluates) of one camera's forward outputs ``f`` (image, alpha, depth,
-    T, last, offsets, ids, block_start, block_pos, ...): alpha = min(0.999, o exp(-sigma)) at each pixel centre of a
-    block for its list entries before the pixel's end (the kernel's rules, in float64)."""
-    import numpy as np
+    T, last, offsets, ids, block_start, block_pos, ...): each block's list entries before a pixel's end whose alpha
+    at that pixel centre is nonzero by ``contrib.pair_alphas`` (the compositors' rules, in float64)."""
+    import torch
+
+    from panorecon.splat.rasterize.contrib import pair_alphas
 
     if size % tile:
         raise ValueError(f"--lane-use: the view size {size} is not a multiple of the {tile}-pixel tile")
-    last, offsets, ids, starts, pos = (t.numpy() for t in f[4:9])
-    m, q, o = m2d.double().numpy(), con.double().numpy(), opac.double().numpy()
+    last, offsets, ids, starts, pos = f[4:9]
     per_side, bpt = tile // block, (tile // block) ** 2
+    lane = torch.arange(block * block)
     composited = lanes = 0
     for t in range(len(offsets) - 1):
         ty, tx = divmod(t, size // tile)
         for b in range(bpt):
-            entries = ids[offsets[t] + pos[starts[t * bpt + b] : starts[t * bpt + b + 1]]]
+            entries = ids[offsets[t] + pos[starts[t * bpt + b] : starts[t * bpt + b + 1]]].long()
             i0, j0 = ty * tile + b // per_side * block, tx * tile + b % per_side * block
-            ends = last[0, i0 : i0 + block, j0 : j0 + block].reshape(-1, 1)
-            py, px = (a.reshape(-1, 1) + 0.5 for a in np.mgrid[i0 : i0 + block, j0 : j0 + block])
-            dx, dy = px - m[entries, 0], py - m[entries, 1]
-            sigma = 0.5 * (q[entries, 0] * dx * dx + q[entries, 2] * dy * dy) + q[entries, 1] * dx * dy
-            alpha = np.minimum(0.999, o[entries] * np.exp(-sigma))
-            k = np.arange(len(entries))[None]
-            composited += int(((k < ends) & (sigma >= 0) & (alpha >= 1 / 255)).sum())
+            pixels = (i0 + lane // block) * size + j0 + lane % block  # [16], row-major
+            ends = last[0].flatten()[pixels][:, None]
+            pix, gid = (x.flatten() for x in torch.broadcast_tensors(pixels[:, None], entries[None]))
+            alpha = pair_alphas(m2d[None], con[None], opac, torch.zeros_like(pix), pix, gid, size).view(len(lane), -1)
+            composited += int(((torch.arange(len(entries)) < ends) & (alpha > 0)).sum())
             lanes += int(ends.max()) * block * block
     return composited, lanes
 
