@@ -32,7 +32,17 @@ TRAIN_WRITES = (
     "renders/*",
 )
 DEMO_WRITES = (*RENDER_WRITES, *TRAIN_WRITES, "gt_cloud.ply", "gt_cloud.png", "*_cloud.png", "panorama.png")
-ABLATE_WRITES = ("results.csv", "results.md", "*.png", "report.html", "cache/*")
+ABLATE_WRITES = (
+    "results.csv",
+    "results.md",
+    "*.png",
+    "report.html",
+    "cache/*",
+    "*/results.csv",
+    "*/results.md",
+    "*/*.png",
+    "*/report.html",
+)
 
 
 def _claim(args, command: str, inputs: dict, writes: tuple[str, ...]) -> None:
@@ -445,7 +455,7 @@ def _check_backend(args, device) -> None:
 # ---------------------------------------------------------------- evaluation
 def cmd_ablate(args) -> int:
     from .device import resolve_device
-    from .evaluation.ablate import run_suite
+    from .evaluation.ablate import run_suites, suite_out_dirs
     from .evaluation.report import average_table
     from .evaluation.suite import load_suite
 
@@ -458,24 +468,24 @@ def cmd_ablate(args) -> int:
         raise PanoreconInputError(f"--scheduler {args.scheduler}: a scheduler is used only with --engine dask")
     if args.root is not None and not Path(args.root).is_dir():
         raise PanoreconInputError(f"--root {args.root}: no such folder (expected a dataset root)")
-    suite = load_suite(args.suite, args.root)
-    if len(suite.rows) > args.max_runs:
+    suites = [load_suite(s, args.root) for s in args.suite]
+    stems = [s.name for s in suites]
+    if len(set(stems)) != len(stems):
+        raise PanoreconInputError(f"ablate: suites {', '.join(args.suite)} share a file name; rename one")
+    runs = {r.run_id() for s in suites for r in s.rows}
+    if len(runs) > args.max_runs:
         raise PanoreconInputError(
-            f"suite {args.suite} expands to {len(suite.rows)} runs, more than --max-runs {args.max_runs}; "
+            f"suite {' '.join(args.suite)} expands to {len(runs)} runs, more than --max-runs {args.max_runs}; "
             "pass a larger --max-runs to run it"
         )
     if args.engine == "dask" and args.scheduler:
         from .evaluation.ablate import check_scheduler
 
         check_scheduler(args.scheduler)
-    points = {r.points_key() for r in suite.rows}
-    trains = {r.train_key() for r in suite.rows if r.train is not None}
-    print(
-        f"{suite.title}: {len(suite.rows)} runs, {len(points)} distinct point-cloud stages and {len(trains)} "
-        f"distinct training stages -> {args.out}"
-    )
-    frame = run_suite(
-        suite,
+    for s in suites:
+        print(f"{s.title}: {len(s.rows)} runs")
+    frames = run_suites(
+        suites,
         args.out,
         jobs=args.jobs,
         engine=args.engine,
@@ -483,13 +493,16 @@ def cmd_ablate(args) -> int:
         cache_dir=args.cache,
         progress=not args.no_progress,
         device=args.device,
+        threads=args.threads,
     )
-    cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
-    print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
-    if "warning" in frame:
-        for _, r in frame[frame["warning"].fillna("").astype(str) != ""].iterrows():
-            print(f"WARNING ({r['label']}, {r['scene']}): {r['warning']}")
-    print(f"-> {Path(args.out) / 'results.csv'}, results.md, pareto.png, report.html")
+    for suite, frame, o in zip(suites, frames, suite_out_dirs(suites, Path(args.out))):
+        cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]
+        print(suite.title)
+        print(average_table(frame)[cols].to_string(float_format=lambda v: f"{v:.4g}"))
+        if "warning" in frame:
+            for _, r in frame[frame["warning"].fillna("").astype(str) != ""].iterrows():
+                print(f"WARNING ({r['label']}, {r['scene']}): {r['warning']}")
+        print(f"-> {o / 'results.csv'}, results.md, pareto.png, report.html")
     return 0
 
 
@@ -498,7 +511,9 @@ def _ablate_from_csv(args) -> int:
     from .evaluation.rerender import rerender
     from .evaluation.suite import load_suite
 
-    suite = load_suite(args.suite, args.root) if args.suite else None
+    if len(args.suite) > 1:
+        raise PanoreconInputError(f"ablate --from-csv: give at most one suite (got {len(args.suite)})")
+    suite = load_suite(args.suite[0], args.root) if args.suite else None
     frame = rerender(args.from_csv, args.out, suite)
     print(f"{len(frame)} runs from {args.from_csv} -> {Path(args.out) / 'results.md'}, report.html, pareto.png")
     return 0
@@ -695,9 +710,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ab.add_argument(
         "suite",
-        nargs="?",
+        nargs="*",
         type=T.in_path,
-        help="suite file, e.g. eval/suites/quick.toml (with --from-csv: optional, for its titles)",
+        help="suite files, e.g. eval/suites/quick.toml; several run as one grid, a run they share once, each "
+        "suite's outputs in OUT/<file stem>/ (with --from-csv: one, optional, for its titles)",
     )
     ab.add_argument(
         "--out",
@@ -706,6 +722,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="output folder (its cache/ makes a rerun or a resumed run cheap)",
     )
     ab.add_argument("--jobs", type=T.JOBS, default=1, help="parallel worker processes")
+    ab.add_argument(
+        "--threads",
+        type=T.int_in(0, 1024, "thread count"),
+        default=0,
+        help="torch threads per worker (0: cores // jobs); results are bit-identical only at one thread count",
+    )
     ab.add_argument(
         "--engine",
         choices=["local", "dask"],

@@ -28,24 +28,6 @@ from .suite import Suite, resolve_names
 ENGINES = ("local", "dask")
 
 
-class _Eta:
-    """Without a progress bar: one line per finished stage at most every ``every`` seconds, with the estimated
-    time left for this level (elapsed / done x remaining)."""
-
-    def __init__(self, total: int, desc: str, quiet: bool, every: float = 30.0):
-        self.total, self.desc, self.quiet, self.every = total, desc, quiet, every
-        self.n, self.t0, self.last = 0, time.perf_counter(), -math.inf
-
-    def done(self) -> None:
-        self.n += 1
-        now = time.perf_counter()
-        if self.quiet or (now - self.last < self.every and self.n < self.total):
-            return
-        self.last = now
-        left = (now - self.t0) / self.n * (self.total - self.n)
-        print(f"{self.desc}: {self.n}/{self.total} stages done, about {left:.0f} s left", flush=True)
-
-
 def check_scheduler(address: str, timeout: float = 3.0) -> None:
     """PanoreconInputError unless ``address`` (``tcp://HOST:PORT`` or ``HOST:PORT``) is well formed and accepts a
     TCP connection within ``timeout`` seconds (dask's own client waits 30 s, then raises a traceback)."""
@@ -76,48 +58,40 @@ def _init_worker(threads: int) -> None:
     torch.set_num_threads(threads)
 
 
-def _points_task(cache_root: str, task: tuple[Row, str, str | None], device: str = "auto") -> dict:
-    from ..device import resolve_device
-
-    row, points_key, _ = task
-    return run_points(
-        StageCache(cache_root), row, points_key, provenance={"commit": git_commit()}, device=resolve_device(device)
-    )
-
-
-def _train_task(cache_root: str, task: tuple[Row, str, str | None], device: str = "auto") -> dict:
+def _row_task(cache_root: str, task: tuple[Row, str, str | None], device: str = "auto", threads: int = 0) -> dict:
+    """Compute (or read from the cache) one row's stages -> {"points": record, "train": record or None}, each
+    record with its ``cached`` flag. ``threads`` > 0: torch's thread count in this process (a Dask worker is
+    reused, so it is set per task)."""
     from ..device import resolve_device
     from ..splat.rasterize import cpu_backend, gsplat_backend
 
+    if threads:
+        _init_worker(threads)
     dev = resolve_device(device)
+    row, points_key, train_key = task
+    cache = StageCache(cache_root)
+    pts = run_points(cache, row, points_key, provenance={"commit": git_commit()}, device=dev)
+    if train_key is None or "unavailable" in pts:
+        return {"points": pts, "train": None}
     # a one-off build (or the wait for another worker's) is install time, not the stage's
     if dev.type == "cpu":
         cpu_backend.load()
     else:
         gsplat_backend.available()
-    row, points_key, train_key = task
-    return run_train(
-        StageCache(cache_root),
-        row,
-        key=train_key,
-        points_key=points_key,
-        provenance={"commit": git_commit()},
-        device=dev,
-    )
+    tr = run_train(cache, row, key=train_key, points_key=points_key, provenance={"commit": git_commit()}, device=dev)
+    return {"points": pts, "train": tr}
 
 
 def _run_tasks(
-    fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, desc: str, progress: bool
-) -> set[str]:
-    """Run ``fn`` on every task -> the keys of the stages this run computed (not those another run sharing the
-    cache computed meanwhile: a task waits for that stage's lock and then reads it)."""
+    fn, tasks: list[tuple], cache_root: str, jobs: int, engine: str, scheduler: str | None, progress: bool, on_done
+) -> None:
+    """Run ``fn(cache_root, task)`` on every task, in order as workers free up, calling ``on_done(task, result)``
+    in this process as each finishes."""
     from tqdm import tqdm
 
-    computed: set[str] = set()
     if not tasks:
-        return computed
-    bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
-    eta = _Eta(len(tasks), desc, quiet=progress)  # the bar shows its own estimate
+        return
+    bar = tqdm(total=len(tasks), desc="runs", disable=not progress)
     if engine == "dask":
         from dask.distributed import Client, LocalCluster
         from dask.distributed import as_completed as dask_completed
@@ -129,29 +103,74 @@ def _run_tasks(
         )
         with Client(scheduler or cluster) as client:
             futures = client.map(fn, [cache_root] * len(tasks), tasks, pure=False)
+            index = {f.key: i for i, f in enumerate(futures)}
             for f in dask_completed(futures):
-                r = f.result()
-                computed |= {r["key"]} if not r["cached"] else set()
+                on_done(tasks[index[f.key]], f.result())
                 bar.update()
-                eta.done()
         if cluster is not None:
             cluster.close()
     else:
-        threads = max(1, (os.cpu_count() or 1) // jobs)
-        with ProcessPoolExecutor(
-            jobs, mp_context=get_context("spawn"), initializer=_init_worker, initargs=(threads,), max_tasks_per_child=1
-        ) as pool:
-            for f in as_completed([pool.submit(fn, cache_root, r) for r in tasks]):
-                r = f.result()
-                computed |= {r["key"]} if not r["cached"] else set()
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
+            futures = {pool.submit(fn, cache_root, t): t for t in tasks}
+            for f in as_completed(futures):
+                on_done(futures[f], f.result())
                 bar.update()
-                eta.done()
     bar.close()
-    return computed
 
 
-def run_suite(
-    suite: Suite,
+def suite_out_dirs(suites: list[Suite], out: Path) -> list[Path]:
+    """Where each suite's outputs go: ``out`` itself for one suite, ``out/<suite file stem>/`` for several."""
+    if len(suites) == 1:
+        return [out]
+    stems = [s.name for s in suites]
+    if len(set(stems)) != len(stems):
+        raise ValueError(f"suites {stems}: two suites share a file name; their outputs would share a folder")
+    return [out / s for s in stems]
+
+
+def finished_rows(paths: list[Path]) -> dict[str, dict]:
+    """run_id -> its results.csv record, over every ``paths`` file that exists (a row that read n/a is left
+    out: it is cheap to try again, and it may run on another machine). A row in several files keeps the first."""
+    found: dict[str, dict] = {}
+    for p in paths:
+        if not p.is_file():
+            continue
+        frame = pd.read_csv(p)
+        if "run_id" not in frame:
+            continue
+        for rec in frame.to_dict("records"):
+            note = rec.get("unavailable_note")
+            if isinstance(note, str) and note:
+                continue
+            found.setdefault(rec["run_id"], rec)
+    return found
+
+
+def _reused(rec: dict, row: Row) -> dict:
+    """A results.csv record ``rec`` of the same run (same run_id) as ``row``, under this row's names: its label
+    and suite columns from this suite, its measurements as measured."""
+    return {
+        **rec,
+        "label": row.label,
+        "scene": row.scene,
+        "seed": row.seed,
+        "source": row.source,
+        "teacher": row.teacher,
+        **row.extra,
+        "cached": "results.csv",
+    }
+
+
+def _block_order(rows: list[Row]) -> list[Row]:
+    """``rows`` ordered by (seed, scene) block, first appearance first: the runs of one block finish together,
+    so a table interrupted between sittings holds whole blocks, each computed by one version of the code."""
+    blocks = list(dict.fromkeys((r.seed, r.scene) for r in rows))
+    rank = {b: i for i, b in enumerate(blocks)}
+    return sorted(rows, key=lambda r: rank[(r.seed, r.scene)])
+
+
+def run_suites(
+    suites: list[Suite],
     out_dir,
     jobs: int = 1,
     engine: str = "local",
@@ -159,74 +178,124 @@ def run_suite(
     cache_dir=None,
     progress: bool = True,
     device: str = "auto",
-) -> pd.DataFrame:
-    """Run (or read from the cache) every row of ``suite``; write DIR/results.csv, results.md, plots and
-    report.html. ``device``: where the stages compute (auto, cpu, cuda); a cached stage keeps the device it ran on."""
+    threads: int = 0,
+) -> list[pd.DataFrame]:
+    """Run every row of ``suites`` once: a run that several suites share (same settings: same ``Row.run_id``)
+    computes once and appears in each. Runs already in a results.csv under ``out_dir`` (this suite's or another's
+    of the same invocation) are not run again, cache or no cache; the others are computed (or read from the
+    stage cache), (seed, scene) block by block, and every results.csv is rewritten as each run finishes.
+    Writes results.csv, results.md, plots and report.html per suite (``suite_out_dirs``). ``threads``: torch
+    threads per worker (0: cores // jobs). ``device``: where the stages compute (auto, cpu, cuda); a cached
+    stage keeps the device it ran on."""
     from ..device import resolve_device
+    from ..pipeline.cache import code_digest
+    from ..pipeline.stages import TRAIN_CODE
 
     if engine not in ENGINES:
         raise ValueError(f"engine={engine!r}: expected one of {ENGINES}")
     resolve_device(device)  # refused here, once, before anything is written or any worker starts
     if jobs < 1:
         raise ValueError(f"jobs={jobs}: expected at least 1")
-    resolve_names(suite)  # every scene, source and teacher, before the first stage and before --out is made
+    if threads < 0:
+        raise ValueError(f"threads={threads}: expected 0 (cores // jobs) or more")
+    for suite in suites:
+        resolve_names(suite)  # every scene, source and teacher, before the first stage and before --out is made
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    outs = suite_out_dirs(suites, out)
+    done_csv = finished_rows([o / "results.csv" for o in outs])
+    for o in outs:
+        o.mkdir(parents=True, exist_ok=True)
     cache = StageCache(cache_dir or out / "cache")
     t0 = time.perf_counter()
+    code = code_digest(TRAIN_CODE)
     # keys fixed once, here: workers use them, so the run stays consistent even if the code changes meanwhile
-    tasks = [(r, r.points_key(), r.train_key() if r.train is not None else None) for r in suite.rows]
-    points_todo = {t[1]: t for t in tasks if cache.done("points", t[1]) is None}
-    points_run = _run_tasks(
-        functools.partial(_points_task, device=device),
-        list(points_todo.values()),
-        str(cache.root),
-        jobs,
-        engine,
-        scheduler,
-        "points",
-        progress,
-    )
-    points_done = {t[1]: cache.done("points", t[1]) for t in tasks}
-    train_todo = {
-        t[2]: t
-        for t in tasks
-        if t[2] is not None and "unavailable" not in points_done[t[1]] and cache.done("train", t[2]) is None
-    }
-    train_run = _run_tasks(
-        functools.partial(_train_task, device=device),
-        list(train_todo.values()),
-        str(cache.root),
-        jobs,
-        engine,
-        scheduler,
-        "train",
-        progress,
-    )
+    keyed = {}
+    for suite in suites:
+        for r in suite.rows:
+            keyed.setdefault(r.run_id(), (r, r.points_key(), r.train_key() if r.train is not None else None))
     env = environment()
-    frame = pd.DataFrame(
-        [
-            result_row(
-                row,
-                points_done[pk],
-                cache.done("train", tk) if tk else None,
-                env,
-                pk not in points_run,
-                tk is not None and tk not in train_run,
-            )
-            for row, pk, tk in tasks
-        ]
+    records: dict[str, dict] = {}
+
+    def record(task, result) -> None:
+        row, pk, tk = task
+        pts, tr = result["points"], result["train"]
+        rec = result_row(row, pts, tr, env, pts["cached"], bool(tr and tr.get("cached")))
+        records[row.run_id()] = {"run_id": row.run_id(), "code": code, **rec}
+
+    todo = []
+    for run_id, task in keyed.items():
+        if run_id in done_csv:
+            continue
+        row, pk, tk = task
+        pts = cache.done("points", pk)
+        tr = cache.done("train", tk) if tk and pts is not None and "unavailable" not in pts else None
+        if pts is not None and (tk is None or "unavailable" in pts or tr is not None):
+            record(task, {"points": {**pts, "cached": True}, "train": tr and {**tr, "cached": True}})
+        else:
+            todo.append(task)
+    todo = [keyed[r.run_id()] for r in _block_order([t[0] for t in todo])]
+    print(
+        f"{len(keyed)} distinct runs: {len(keyed) - len(done_csv.keys() & keyed.keys()) - len(todo)} in the stage "
+        f"cache, {len(done_csv.keys() & keyed.keys())} in results.csv, {len(todo)} to run",
+        flush=True,
     )
-    if suite.reference:
-        frame["reference"] = frame["label"] == suite.reference
+
+    def frames() -> list[pd.DataFrame]:
+        out_frames = []
+        for suite in suites:
+            rows = []
+            for r in suite.rows:
+                rid = r.run_id()
+                if rid in records:
+                    rows.append({**records[rid], "label": r.label, **r.extra})
+                elif rid in done_csv:
+                    rows.append(_reused(done_csv[rid], r))
+            frame = pd.DataFrame(rows)
+            if suite.reference and len(frame):
+                frame["reference"] = frame["label"] == suite.reference
+            out_frames.append(frame)
+        return out_frames
+
+    def save_csvs() -> None:
+        for frame, o in zip(frames(), outs):
+            if len(frame):
+                with atomic_write(o / "results.csv") as tmp:
+                    frame.to_csv(tmp, index=False)
+
+    started, finished, run_seconds = time.perf_counter(), [0], [0.0]
+
+    def on_done(task, result) -> None:
+        record(task, result)
+        save_csvs()
+        finished[0] += 1
+        row = task[0]
+        rec = records[row.run_id()]
+        run_seconds[0] += float(rec.get("sec_total") or 0.0)
+        left = (time.perf_counter() - started) / finished[0] * (len(todo) - finished[0])
+        print(
+            f"[{finished[0]}/{len(todo)}] {row.scene} seed {row.seed} {row.label!r}: {rec.get('sec_total', 0):.0f} s"
+            f", psnr_ho {rec.get('psnr_ho', float('nan')):.2f}; about {left / 60:.0f} min left",
+            flush=True,
+        )
+
+    fn = functools.partial(_row_task, device=device, threads=threads or max(1, (os.cpu_count() or 1) // jobs))
+    _run_tasks(fn, todo, str(cache.root), jobs, engine, scheduler, progress, on_done)
+    result = frames()
     from .report_html import RowAssets
 
-    assets = [
-        RowAssets(cache.folder("train", tk) / "renders" if tk else None, cache.folder("points", pk) / "cloud.ply", pk)
-        for _, pk, tk in tasks
-    ]
-    write_outputs(frame, suite, out, assets, t0)
-    return frame
+    for suite, frame, o in zip(suites, result, outs):
+        assets = []
+        for r in suite.rows:
+            _, pk, tk = keyed[r.run_id()]
+            renders = cache.folder("train", tk) / "renders" if tk else None
+            assets.append(RowAssets(renders, cache.folder("points", pk) / "cloud.ply", pk))
+        write_outputs(frame, suite, o, assets, t0)
+    return result
+
+
+def run_suite(suite: Suite, out_dir, **kwargs) -> pd.DataFrame:
+    """``run_suites`` of one suite: its outputs in ``out_dir`` itself."""
+    return run_suites([suite], out_dir, **kwargs)[0]
 
 
 def write_outputs(frame: pd.DataFrame, suite: Suite, out: Path, assets: list | None, t0: float) -> None:
@@ -287,6 +356,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
         "accuracy": _num(points.get("accuracy")),
         "completeness": _num(points.get("completeness")),
         "sec_points": pts["seconds"],
+        "cpu_points": _num(pts.get("cpu_seconds")),
+        "load_points": _num(pts.get("load_average")),
         "peak_mb_points": pts["peak_rss_mb"],
         "view_components": rep.get("view_components"),
         "warning": "; ".join(rep.get("warnings", [])),
@@ -323,6 +394,8 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
             sec_train=m["seconds"]["train"],
             sec_eval=m["seconds"]["eval"],
             peak_mb_train=tr["peak_rss_mb"],
+            cpu_train=_num(tr.get("cpu_seconds")),
+            load_train=_num(tr.get("load_average")),
             history=";".join(f"{h['iteration']}:{h['psnr']:.3f}" for h in m["history"]),
             # held-out PSNR against training seconds (runs made before it was recorded have none)
             history_heldout=";".join(
@@ -332,6 +405,14 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
             )
             or None,
         )
+        for b in m.get("budgets", []):  # the full evaluation at each budget (TrainConfig.eval_at and the last step)
+            step = b["iteration"]
+            rec[f"sec_train@{step}"] = b["seconds"]
+            rec[f"gaussians@{step}"] = b["gaussians"]
+            for proto, tag in (("pseudo-label", "pl"), ("held-out", "ho")):
+                block = b.get(proto) if isinstance(b.get(proto), dict) else {}
+                for metric in ("psnr", "ssim", "lpips"):
+                    rec[f"{metric}_{tag}@{step}"] = _num(block.get(metric))
         seconds_total += tr["seconds"]
         peak = max(peak, tr["peak_rss_mb"])
     rec.update(

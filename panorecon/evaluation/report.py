@@ -217,6 +217,98 @@ def _paper_block(paper: dict) -> str:
     return "\n".join(lines)
 
 
+BUDGET_METRICS = ("psnr_pl", "ssim_pl", "lpips_pl", "psnr_ho", "ssim_ho", "lpips_ho", "sec_train", "gaussians")
+
+
+def budget_steps(frame: pd.DataFrame) -> list[int]:
+    """The training steps every trained run of ``frame`` was fully evaluated at (``psnr_ho@N`` or ``psnr_pl@N``
+    columns with a value in every row that has a final one), ascending."""
+    steps = sorted({int(c.split("@")[1]) for c in frame.columns if c.startswith(("psnr_ho@", "psnr_pl@"))})
+    if not steps or "psnr_pl" not in frame:
+        return []
+    trained = frame[pd.to_numeric(frame["psnr_pl"], errors="coerce").notna()]
+    return [
+        n
+        for n in steps
+        if len(trained)
+        and any(f"{m}@{n}" in trained and trained[f"{m}@{n}"].notna().all() for m in ("psnr_ho", "psnr_pl"))
+    ]
+
+
+def at_budget(frame: pd.DataFrame, step: int) -> pd.DataFrame:
+    """``frame`` with its metric columns read at training step ``step`` (``psnr_ho@step`` as ``psnr_ho``, ...);
+    rows without that budget keep NaN."""
+    out = frame.copy()
+    for m in BUDGET_METRICS:
+        out[m] = pd.to_numeric(frame[f"{m}@{step}"], errors="coerce") if f"{m}@{step}" in frame else math.nan
+    return out
+
+
+def budget_markdown(frame: pd.DataFrame, reference: str | None, label_header: str) -> str:
+    """The "At each training budget" section of results.md: per step, every row's mean (95 % interval over seeds)
+    and, with a reference, its paired difference on these scenes and on new scenes with verdicts; '' when the
+    runs record fewer than two budgets."""
+    steps = budget_steps(frame)
+    if len(steps) < 2:
+        return ""
+    has_heldout = any(f"psnr_ho@{n}" in frame and frame[f"psnr_ho@{n}"].notna().any() for n in steps)
+    prim = "psnr_ho" if has_heldout else "psnr_pl"
+    name = "held-out PSNR (dB)" if prim == "psnr_ho" else "pseudo-label PSNR (dB)"
+    parts = [
+        "## At each training budget",
+        "",
+        f"Every run evaluated in full at {', '.join(f'{n:,}' for n in steps)} steps (one run per cell, read at "
+        "each budget, so an advantage that is early-only shows as a difference that shrinks). Train s: training "
+        f"seconds to that step (median over runs). Δ: paired difference of {name} to the reference, as above. "
+        "Plot: `paired_vs_seconds.png`.",
+        "",
+    ]
+    headers = [label_header, name, "SSIM" if prim == "psnr_ho" else "", "train s"]
+    headers = [h for h in headers if h]
+    if reference:
+        headers += ["Δ these scenes", "Δ new scenes"]
+    for n in steps:
+        b = at_budget(frame, n)
+        table = average_table(b)
+        comps = {c.label: c for c in comparison_rows(b, reference, prim)} if reference else {}
+        rows = []
+        for label, r in table.iterrows():
+            cell = _fmt(r[prim], "{:.2f}") + (f" ± {r[f'{prim}_hw']:.2f}" if not math.isnan(r[f"{prim}_hw"]) else "")
+            ssim_col = prim.replace("psnr", "ssim")
+            cells = [str(label), cell]
+            if prim == "psnr_ho":
+                cells.append(_fmt(r.get(ssim_col, math.nan), "{:.3f}"))
+            sec = pd.to_numeric(b.loc[b["label"] == label, "sec_train"], errors="coerce").median()
+            cells.append(_fmt(sec, "{:.1f}"))
+            if reference:
+                c = comps.get(label)
+                cells += (
+                    ["reference", "reference"]
+                    if c is None
+                    else [_diff_cell(c.these, "{:.2f}", c.verdict_these), _diff_cell(c.new, "{:.2f}", c.verdict_new)]
+                )
+            rows.append(cells)
+        parts += [f"### Step {n:,}", "", _markdown(headers, rows), ""]
+    return "\n".join(parts)
+
+
+def mixed_code_notes(frame: pd.DataFrame) -> list[str]:
+    """One line per (scene, seed) block whose runs were computed by more than one version of the code (the
+    ``code`` column): their pairs across versions are left out of every paired comparison."""
+    if "code" not in frame:
+        return []
+    notes = []
+    for (scene, seed), g in with_seed(frame).groupby(["scene", "seed"], sort=False):
+        codes = list(dict.fromkeys(g["code"].dropna().astype(str)))
+        if len(codes) > 1:
+            notes.append(
+                f"**Mixed code** in block ({scene}, seed {seed}): its runs were computed by code "
+                f"{', '.join(codes)}; pairs across versions are left out of the paired comparisons "
+                "(rerun the block to pair them)."
+            )
+    return notes
+
+
 def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float, per_scene: bool = True) -> None:
     """DIR/results.md: the averaged table, the per-scene table, the paper's numbers, notes on n/a cells."""
     frame = with_seed(frame)
@@ -245,6 +337,11 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
     ]
     if reference:
         parts += [comparison_markdown(frame, reference, head), ""]
+    budgets = budget_markdown(frame, reference, head)
+    if budgets:
+        parts += [budgets, ""]
+    for note in mixed_code_notes(frame):
+        parts += [note, ""]
     notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]
@@ -444,6 +541,48 @@ def write_plots(frame: pd.DataFrame, suite, out: Path) -> None:
         heldout_vs_seconds_plot(
             frame[frame["history_heldout"].notna()], out / "heldout_psnr_vs_seconds.png", suite.title
         )
+    reference = getattr(suite, "reference", None)
+    if trains and reference and len(budget_steps(frame)) >= 2:
+        paired_vs_seconds_plot(frame, reference, out / "paired_vs_seconds.png", suite.title)
+
+
+def paired_vs_seconds_plot(frame: pd.DataFrame, reference: str, path: Path, title: str = "") -> None:
+    """Each row's paired difference to ``reference`` (held-out PSNR, else pseudo-label PSNR; these scenes, 95 %
+    interval as error bars) at every budget (``budget_steps``), against the row's median training seconds to
+    that budget: a line that falls toward 0 is an advantage that is early-only, one that stays is lasting."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = budget_steps(frame)
+    prim = "psnr_ho" if f"psnr_ho@{steps[-1]}" in frame and frame[f"psnr_ho@{steps[-1]}"].notna().any() else "psnr_pl"
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    ax.axhline(0, color="k", lw=0.8)
+    labels = [label for label in dict.fromkeys(frame["label"]) if label != reference]
+    for k, label in enumerate(labels):
+        xs, ys, errs = [], [], []
+        for n in steps:
+            b = at_budget(frame, n)
+            c = comparison_rows(b[b["label"].isin([label, reference])], reference, prim)
+            if not c or math.isnan(c[0].these.estimate):
+                continue
+            xs.append(float(pd.to_numeric(b.loc[b["label"] == label, "sec_train"], errors="coerce").median()))
+            ys.append(c[0].these.estimate)
+            errs.append(0.0 if math.isnan(c[0].these.half_width) else c[0].these.half_width)
+        if xs:
+            ax.errorbar(xs, ys, yerr=errs, color=f"C{k % 10}", marker="o", capsize=3, label=str(label))
+    what = "held-out" if prim == "psnr_ho" else "pseudo-label"
+    ax.set(
+        xlabel="training seconds (median over runs) at each budget",
+        ylabel=f"Δ {what} PSNR to {reference} (dB, paired)",
+        title=title + "\nbars: 95 % interval over seeds, these scenes",
+    )
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_write(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
 
 
 def heldout_vs_seconds_plot(frame: pd.DataFrame, path: Path, title: str = "") -> None:

@@ -137,15 +137,35 @@ def verdict(iv: Interval, direction: int) -> str:
     return "better" if up == (direction > 0) else "worse"
 
 
+def direction(column: str) -> int:
+    """+1 / -1 / 0 of ``column`` (``DIRECTION``; a budget column ``psnr_ho@300`` as ``psnr_ho``)."""
+    return DIRECTION.get(column.split("@")[0], 0)
+
+
+def mixed_code_pairs(frame: pd.DataFrame, label: str, reference: str) -> pd.Index:
+    """(scene, seed) pairs where ``label``'s run and ``reference``'s were computed by different code (their
+    ``code`` columns differ); empty without a ``code`` column."""
+    if "code" not in frame:
+        return pd.Index([])
+    runs = frame[frame["label"].isin([label, reference])]
+    codes = runs.pivot_table(index=["scene", "seed"], columns="label", values="code", aggfunc="first", sort=False)
+    if label not in codes or reference not in codes:
+        return pd.Index([])
+    both = codes[[label, reference]].dropna()
+    return both.index[both[label] != both[reference]]
+
+
 def paired_differences(frame: pd.DataFrame, column: str, label: str, reference: str) -> pd.DataFrame:
     """Columns scene, seed, value = ``label``'s ``column`` minus ``reference``'s, on every (scene, seed) both
-    have a finite value for."""
+    have a finite value for and (with a ``code`` column) both were computed by the same code: a difference
+    across two versions of the code is not a paired difference."""
     runs = frame[["label", "scene", "seed", column]].copy()
     runs[column] = pd.to_numeric(runs[column], errors="coerce")
     wide = runs.pivot_table(index=["scene", "seed"], columns="label", values=column, aggfunc="mean", sort=False)
     if label not in wide or reference not in wide:
         return pd.DataFrame({"scene": [], "seed": [], "value": []})
     d = (wide[label] - wide[reference]).dropna()
+    d = d[~d.index.isin(mixed_code_pairs(frame, label, reference))]
     return pd.DataFrame({"scene": d.index.get_level_values(0), "seed": d.index.get_level_values(1), "value": d.values})
 
 
@@ -223,19 +243,19 @@ def compare(frame: pd.DataFrame, column: str, label: str, reference: str) -> Com
     """``label`` against ``reference`` on ``column`` (both intervals, verdicts and the designs that would resolve
     the observed difference: scenes × seeds)."""
     d = paired_differences(frame, column, label, reference)
-    direction = DIRECTION.get(column, 0)
+    sign = direction(column)
     these, new = these_scenes(d), new_scenes(d)
     scenes = d["scene"].nunique()
     seeds = int(d.groupby("scene")["seed"].nunique().max()) if len(d) else 0
-    resolved_these = verdict(these, direction) in ("better", "worse", "higher", "lower")
-    resolved_new = verdict(new, direction) in ("better", "worse", "higher", "lower")
+    resolved_these = verdict(these, sign) in ("better", "worse", "higher", "lower")
+    resolved_new = verdict(new, sign) in ("better", "worse", "higher", "lower")
     return Comparison(
         label,
         column,
         these,
         new,
-        verdict(these, direction),
-        verdict(new, direction),
+        verdict(these, sign),
+        verdict(new, sign),
         "resolved" if resolved_these else _design(needed_seeds(d), scenes, False),
         "resolved" if resolved_new else _design(needed_scenes(d, max(seeds, 1)), max(seeds, 1), True),
         len(d),

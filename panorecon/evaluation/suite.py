@@ -151,6 +151,12 @@ def _type_name(t) -> str:
 def check_value(path: Path, where: str, key: str, value, schema: dict, choices: dict) -> None:
     """Raise PanoreconInputError unless ``value`` has ``key``'s type and range."""
     want = schema[key]
+    if typing.get_origin(want) is tuple:  # a list of steps (TrainConfig.eval_at)
+        if not (isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+            raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r}: expected a list of integers")
+        if any(v < 1 for v in value):
+            raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r}: expected steps >= 1")
+        return
     ok = isinstance(value, want) and not (want in (int, float) and isinstance(value, bool))
     if want is float and isinstance(value, int) and not isinstance(value, bool):
         ok = True

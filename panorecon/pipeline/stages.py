@@ -6,7 +6,9 @@ when it trains, a ``TrainConfig``. ``points`` runs the source (teacher depths an
 its cloud (``cloud.ply``: the fused distances along the ERP rays) and report; ``train`` fits Gaussians from that
 cloud. Scenes are re-rendered on
 load (deterministic, well under a second at the widths suites use) and enter every key by name and width.
-Each stage records its seconds and the peak resident memory of the process that computed it.
+Each stage records its wall seconds, the CPU seconds of its process (all threads: on a loaded machine the
+cost a run would have had alone, at one thread), the 1-minute load average when it started, and the peak
+resident memory of the process that computed it.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,32 +56,36 @@ class Row:
     def _scene_params(self) -> dict:
         return {"scene": self.scene, "width": self.width, **({"depth": list(self.depth)} if self.depth else {})}
 
+    def _points_params(self) -> dict:
+        return {
+            **self._scene_params(),
+            "source": self.source,
+            "teacher": teacher_fingerprint(self._teacher_for_points()),
+            "views": self.views,
+            # a seed-independent stage keeps the key it had before suites had seeds (its cache stays valid)
+            **({"seed": self.seed} if self._points_seeded() else {}),
+        }
+
+    def _train_params(self) -> dict:
+        return {
+            **self._scene_params(),
+            "teacher": teacher_fingerprint(self.teacher),
+            "seed": self.seed,
+            "config": self.train_config_dict(),
+        }
+
     def points_key(self) -> str:
-        return stage_key(
-            "points",
-            {
-                **self._scene_params(),
-                "source": self.source,
-                "teacher": teacher_fingerprint(self._teacher_for_points()),
-                "views": self.views,
-                # a seed-independent stage keeps the key it had before suites had seeds (its cache stays valid)
-                **({"seed": self.seed} if self._points_seeded() else {}),
-            },
-            code=POINTS_CODE,
-        )
+        return stage_key("points", self._points_params(), code=POINTS_CODE)
 
     def train_key(self) -> str:
-        return stage_key(
-            "train",
-            {
-                **self._scene_params(),
-                "teacher": teacher_fingerprint(self.teacher),
-                "seed": self.seed,
-                "config": self.train_config_dict(),
-            },
-            (self.points_key(),),
-            TRAIN_CODE,
-        )
+        return stage_key("train", self._train_params(), (self.points_key(),), TRAIN_CODE)
+
+    def run_id(self) -> str:
+        """SHA-256 (20 hex) of the row's settings, without the code digests of the stage keys: the same run on
+        any machine and any version of the code (``ablate`` resumes from a results.csv by it; the ``code``
+        column says which code computed a row)."""
+        params = {"points": self._points_params(), "train": self._train_params() if self.train is not None else None}
+        return hashlib.sha256(json.dumps(params, sort_keys=True, default=str).encode()).hexdigest()[:20]
 
     def train_config_dict(self) -> dict:
         from ..splat.trainer import TrainConfig
@@ -210,7 +217,7 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
     from ..io import PanoreconInputError
     from ..sources import run_source
 
-    t = time.perf_counter()
+    t, cpu, load = time.perf_counter(), time.process_time(), os.getloadavg()[0]
     scene = load_row_scene(row.scene, row.width, cache, row.depth)
     scene_s = time.perf_counter() - t
     try:
@@ -226,6 +233,8 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
             "unavailable": str(e),
             "scene_seconds": scene_s,
             "seconds": time.perf_counter() - t,
+            "cpu_seconds": time.process_time() - cpu,
+            "load_average": load,
             "peak_rss_mb": peak_rss_mb(),
             **(provenance or {}),
         }
@@ -239,6 +248,8 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
         "report": report,
         "scene_seconds": scene_s,
         "seconds": report["seconds"]["total"],
+        "cpu_seconds": time.process_time() - cpu,
+        "load_average": load,
         "peak_rss_mb": peak_rss_mb(),
         "points": len(pc),
         **(provenance or {}),
@@ -278,6 +289,7 @@ def _compute_train(
     from ..sources import cloud_scale
     from ..splat.trainer import TrainConfig, train
 
+    cpu, load = time.process_time(), os.getloadavg()[0]
     scene = load_row_scene(row.scene, row.width, cache, row.depth)
     cloud_path = cache.folder("points", points["key"]) / "cloud.ply"
     cloud = PointCloud.load_ply(cloud_path)
@@ -304,6 +316,8 @@ def _compute_train(
         "key": key,
         "metrics": metrics,
         "seconds": metrics["seconds"]["total"],
+        "cpu_seconds": time.process_time() - cpu,
+        "load_average": load,
         "peak_rss_mb": peak_rss_mb(),
         **(provenance or {}),
     }

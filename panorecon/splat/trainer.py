@@ -102,6 +102,11 @@ class TrainConfig:
     checkpoint_every: int = _f(500, "steps between checkpoints (out_dir/ckpt.pt)")
     heldout: int = _f(8, "held-out true views (synthetic scenes; dataset scenes with other posed panoramas)")
     history_every: int = _f(100, "steps between history samples (training-view and held-out PSNR)")
+    eval_at: tuple[int, ...] = _f(
+        (),
+        "steps before the last at which the full evaluation (pseudo-label and held-out PSNR, SSIM, LPIPS) is also "
+        "recorded, in metrics.json's 'budgets' beside the final step's: one run read at several training budgets",
+    )
     sky: str = _f(
         "panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none"
     )
@@ -345,6 +350,8 @@ def train(
     for name in ("w_l1", "w_ssim", "w_depth"):
         if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0):
             raise ValueError(f"{name}={getattr(cfg, name)!r}: expected a finite loss weight >= 0")
+    if any(not (isinstance(n, int) and 0 < n) for n in cfg.eval_at):
+        raise ValueError(f"eval_at={cfg.eval_at!r}: expected steps >= 1")
     if not 0 <= cfg.disocclusion_fill_deg <= 180:
         raise ValueError(f"disocclusion_fill_deg={cfg.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
     out = Path(out_dir)
@@ -408,7 +415,7 @@ def train(
     strategy = STRATEGIES[cfg.strategy](
         refine_start=cfg.densify_from, refine_stop=int(cfg.densify_until * cfg.iters), grad_threshold=cfg.grad_threshold
     )
-    start, history = 0, []
+    start, history, budgets = 0, [], []
     ckpt = out / "ckpt.pt"
     keys = checkpoint_inputs(scene, point_cloud, cfg.digest(), {**(inputs or {}), "heldout_scale": heldout_scale})
     state = load_checkpoint(ckpt, keys, cfg.iters)
@@ -418,6 +425,7 @@ def train(
         opt = _adam(model, groups)
         opt.load_state_dict(state["optimizer"])
         start, history = state["iteration"], state["history"]
+        budgets = state.get("budgets", [])
         strategy.load_state_dict(state["strategy"])
         torch.set_rng_state(state["rng"])
         if dev.type == "cuda" and "cuda_rng" in state:
@@ -456,6 +464,7 @@ def train(
         state = {
             "iteration": iteration,
             "history": history,
+            "budgets": budgets,
             "optimizer": opt.state_dict(),
             "strategy": strategy.state_dict(),
             **rng,
@@ -531,6 +540,18 @@ def train(
                 history[-1]["heldout_psnr"] = _heldout_psnr(model, heldout, cfg, backend)
             history_s += time.perf_counter() - te
             bar.set_postfix(psnr=f"{history[-1]['psnr']:.2f}", n=len(model))
+        if it + 1 in cfg.eval_at and it + 1 < cfg.iters:
+            te = time.perf_counter()
+            budgets.append(
+                {
+                    "iteration": it + 1,
+                    "seconds": clock0 + te - t - history_s,
+                    "gaussians": len(model),
+                    "pseudo-label": _evaluate(model, labels, cfg, backend),
+                    "held-out": _evaluate(model, heldout, cfg, backend) if heldout else None,
+                }
+            )
+            history_s += time.perf_counter() - te
         if cfg.checkpoint_every and (it + 1) % cfg.checkpoint_every == 0 and it + 1 < cfg.iters:
             checkpoint(it + 1)
     synchronize(dev)
@@ -544,6 +565,15 @@ def train(
         else scene.meta.get("heldout_note", "n/a: scene has no ground-truth world"),
     }
     seconds["eval"] = time.perf_counter() - t
+    budgets.append(
+        {
+            "iteration": cfg.iters,
+            "seconds": clock0 + seconds["train"],
+            "gaussians": len(model),
+            "pseudo-label": metrics["pseudo-label"],
+            "held-out": metrics["held-out"] if heldout else None,
+        }
+    )
     save_ply(model, out / "point_cloud.ply")
     if env is not None:  # the sky the Gaussians were trained in front of, for viewers of the .ply
         write_image(out / "sky.png", (env * 255).round().astype(np.uint8))
@@ -583,6 +613,7 @@ def train(
         peak_rss_mb=peak_rss_mb(),
         **device_record(dev),
         history=history,
+        budgets=budgets,
         heldout_best=best_heldout(history, heldout_na),
         heldout_plateau=heldout_plateau(history, heldout_na),
         heldout_scale=heldout_scale,

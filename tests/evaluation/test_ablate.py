@@ -77,11 +77,17 @@ def test_outputs_have_every_metric_with_time_and_memory(first_run):
     assert page.count("data:image/png;base64,") == 2 + 2 * 3 and page.count("<div class=strip>") == 2
 
 
-def test_second_run_reads_everything_from_the_cache(first_run):
+def test_second_run_reads_everything_from_results_csv_then_from_the_cache(first_run, tmp_path):
     d, suite, frame = first_run
     again = run_suite(suite, d / "out", jobs=1, progress=False)
-    assert set(again["cached"]) == {"points,train"}
+    assert set(again["cached"]) == {"results.csv"}
     pd.testing.assert_series_equal(again["psnr_pl"], frame["psnr_pl"])
+    import shutil
+
+    shutil.copytree(d / "out" / "cache", tmp_path / "cache")  # the same cache, no results.csv
+    from_cache = run_suite(suite, tmp_path / "out", jobs=1, progress=False, cache_dir=tmp_path / "cache")
+    assert set(from_cache["cached"]) == {"points,train"}
+    pd.testing.assert_series_equal(from_cache["psnr_pl"], frame["psnr_pl"])
 
 
 def test_a_cached_row_keeps_the_commit_of_the_run_that_computed_it(first_run):
