@@ -468,7 +468,10 @@ def cmd_ablate(args) -> int:
         raise PanoreconInputError(f"--scheduler {args.scheduler}: a scheduler is used only with --engine dask")
     if args.root is not None and not Path(args.root).is_dir():
         raise PanoreconInputError(f"--root {args.root}: no such folder (expected a dataset root)")
-    suites = [load_suite(s, args.root) for s in args.suite]
+    from .evaluation.suite import parse_override
+
+    overrides = dict(parse_override(t) for t in args.set)
+    suites = [load_suite(s, args.root, overrides) for s in args.suite]
     stems = [s.name for s in suites]
     if len(set(stems)) != len(stems):
         raise PanoreconInputError(f"ablate: suites {', '.join(args.suite)} share a file name; rename one")
@@ -727,6 +730,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=T.int_in(0, 1024, "thread count"),
         default=0,
         help="torch threads per worker (0: cores // jobs); results are bit-identical only at one thread count",
+    )
+    ab.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a suite's [defaults] setting in every suite given, e.g. --set iters=10000 (repeatable; "
+        "the runs are then other runs, with their own results)",
     )
     ab.add_argument(
         "--engine",

@@ -276,9 +276,24 @@ def _expand_scene(scene: str, path: Path) -> list[str]:
     return found
 
 
-def load_suite(path, root: str | None = None) -> Suite:
+def parse_override(text: str) -> tuple[str, object]:
+    """``KEY=VALUE`` (``ablate --set``) -> (key, value), the value read as a TOML value (``iters=10000``,
+    ``teacher="sim:clean"``, or a bare word as a string: ``teacher=sim:clean``)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise PanoreconInputError(f"--set {text!r}: expected KEY=VALUE, e.g. --set iters=10000")
+    try:
+        parsed = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value
+    return key.strip(), parsed
+
+
+def load_suite(path, root: str | None = None, overrides: dict | None = None) -> Suite:
     """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file).
-    ``root``: the dataset root for ``{root}`` (default $PANORECON_DATASET_ROOT)."""
+    ``root``: the dataset root for ``{root}`` (default $PANORECON_DATASET_ROOT). ``overrides``: settings that
+    replace the suite's [defaults] (e.g. the paper's iters = 10000 on a GPU), checked as [defaults] are; a key
+    that the suite's [grid] or [[variants]] sets is refused (the override would be silently lost)."""
     path = Path(path)
     root = root or os.environ.get(ROOT_ENV)
     if not path.is_file():
@@ -292,6 +307,15 @@ def load_suite(path, root: str | None = None) -> Suite:
     train_fields = _train_fields()
     defaults, grid, variants = data.get("defaults", {}), data.get("grid", {}), data.get("variants", [{}])
     _check_table(path, "[defaults]", defaults, schema, choices)
+    if overrides:
+        _check_table(path, "--set", overrides, schema, choices)
+        for k in overrides:
+            if k in grid or any(k in v for v in variants):
+                raise PanoreconInputError(
+                    f"suite {path}: --set {k}: {k} is a row variable of this suite ([grid] or [[variants]]); "
+                    "only [defaults] can be overridden"
+                )
+        defaults = {**defaults, **overrides}
     _check_table(path, "[grid]", grid, schema, choices, listed=True)
     for i, v in enumerate(variants):
         _check_table(path, f"[[variants]] {i + 1}", v, schema, choices)

@@ -1,0 +1,163 @@
+"""The paper's ablation claims judged on the committed tables (README's "Results" table).
+
+    python eval/claims.py benchmarks/tables [--step N] [--markdown]
+
+Reads ``DIR/table{2,4,5,6,7}/results.csv`` (``panorecon ablate eval/suites/table{2,4,5,6,7}.toml --out DIR``)
+and, for each claim of the paper's §3, takes the paired difference that the claim is about (run by run on the
+same scene and seed, ``evaluation/stats.py``) on the paper's protocol (pseudo-label PSNR) and on held-out
+views, each with its 95 % interval on these scenes and across new scenes. A claim is **confirmed** when every
+difference it makes is resolved in its direction, **contradicted** when one is resolved against it, else
+**not resolved**; a claim whose rows cannot run here (no weights, no CUDA) is ``n/a`` with the reason. The
+verdict column is the paper's protocol on these scenes; the new-scenes verdict is in its cell. Prints JSON, or
+the markdown table with ``--markdown``. ``--step``: read every run at that training budget (default: the last).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import pandas as pd
+
+from panorecon.evaluation.report import at_budget
+from panorecon.evaluation.stats import compare
+
+# (claim, paper's figure, table, [(row, reference, sign)]: the claim says sign * (row - reference) > 0)
+CLAIMS = [
+    (
+        "Fibonacci initialization is the best of Table 2's rows",
+        "42.07 dB, next best 38.64 (COLMAP)",
+        "table2",
+        [
+            (r, "fibonacci", -1)
+            for r in ("icosahedral", "latlong", "cube", "moge-merge", "erp-direct", "random", "colmap-sfm")
+        ],
+    ),
+    (
+        "The MoGe-2 teacher is best; DPT is far worse",
+        "42.07 vs 41.67 (VGGT), 32.93 (DPT)",
+        "table4",
+        [("sim:clean", "sim:relative", -1), ("sim:affine-disparity", "sim:relative", -1)],
+    ),
+    (
+        "180 pseudo-labels are best",
+        "42.37 vs 42.12 / 42.07 / 42.03 / 41.44",
+        "table5",
+        [(r, "180", -1) for r in ("120", "240", "300", "360")],
+    ),
+    (
+        "Fibonacci 20 views beat the icosahedron's 20",
+        "42.07 vs 41.67",
+        "table6",
+        [("Icosahedron (20)", "Fibonacci 20", -1)],
+    ),
+    ("25 Fibonacci views beat 20", "42.24 vs 42.07", "table6", [("Fibonacci 25", "Fibonacci 20", 1)]),
+    (
+        "Adaptive pruning beats 3DGS's densify/prune",
+        "+0.32 dB (42.07 vs 41.75)",
+        "table7",
+        [("default", "adaptive", -1)],
+    ),
+]
+NOT_HERE = {
+    "colmap-mvs": "n/a: COLMAP MVS needs a CUDA build of pycolmap",
+    "real teachers": "n/a: MoGe-2, DPT, Metric3D and VGGT weights cannot be downloaded here; sim: profiles stand in",
+}
+
+
+def _cell(c) -> dict:
+    def iv(x):
+        return None if math.isnan(x.estimate) else {"estimate": x.estimate, "low": x.low, "high": x.high}
+
+    return {
+        "these": iv(c.these),
+        "new": iv(c.new),
+        "verdict_these": c.verdict_these,
+        "verdict_new": c.verdict_new,
+        "pairs": c.pairs,
+    }
+
+
+def _judge(verdicts: list[str], signs: list[int]) -> str:
+    """better/worse verdicts of (row - reference) against the claim's signs -> confirmed, contradicted or not
+    resolved."""
+    if not verdicts:
+        return "n/a: no runs"
+    agree = [(v == "better") == (s > 0) for v, s in zip(verdicts, signs) if v in ("better", "worse")]
+    if any(not a for a in agree):
+        return "contradicted"
+    return "confirmed" if len(agree) == len(verdicts) else "not resolved"
+
+
+def judge(tables: Path, step: int | None = None) -> list[dict]:
+    out = []
+    for claim, paper, table, diffs in CLAIMS:
+        csv = tables / table / "results.csv"
+        if not csv.is_file():
+            out.append({"claim": claim, "paper": paper, "table": table, "verdict": f"n/a: no {csv}"})
+            continue
+        frame = pd.read_csv(csv, dtype={"label": str})
+        if step is not None:
+            frame = at_budget(frame, step)
+        rec = {
+            "claim": claim,
+            "paper": paper,
+            "table": table,
+            "scenes": int(frame["scene"].nunique()),
+            "seeds": int(frame["seed"].nunique()),
+        }
+        for col, proto in (("psnr_pl", "pseudo_label"), ("psnr_ho", "heldout")):
+            comps = [(compare(frame, col, row, ref), sign) for row, ref, sign in diffs if row in set(frame["label"])]
+            rec[proto] = {c.label: _cell(c) for c, _ in comps}
+            rec[f"verdict_{proto}_these"] = _judge([c.verdict_these for c, _ in comps], [s for _, s in comps])
+            rec[f"verdict_{proto}_new"] = _judge([c.verdict_new for c, _ in comps], [s for _, s in comps])
+        rec["verdict"] = rec["verdict_pseudo_label_these"]
+        out.append(rec)
+    return out
+
+
+def _range(cells: dict) -> str:
+    """The differences of a claim as 'row: −0.12 [−0.20, −0.04]; ...' (these scenes)."""
+    parts = []
+    for label, c in cells.items():
+        t = c["these"]
+        parts.append(
+            f"{label}: " + ("n/a" if t is None else f"{t['estimate']:+.2f} [{t['low']:+.2f}, {t['high']:+.2f}]")
+        )
+    return "; ".join(parts)
+
+
+def markdown(claims: list[dict]) -> str:
+    lines = [
+        "| claim (paper §3) | paper | Δ pseudo-label PSNR, these scenes (dB, 95 %) | verdict (these / new scenes) "
+        "| held-out (these / new) | scenes × seeds |",
+        "|---|---|---|---|---|---|",
+    ]
+    for c in claims:
+        if "pseudo_label" not in c:
+            lines.append(f"| {c['claim']} | {c['paper']} | — | {c['verdict']} | — | — |")
+            continue
+        lines.append(
+            f"| {c['claim']} | {c['paper']} | {_range(c['pseudo_label'])} | **{c['verdict_pseudo_label_these']}** / "
+            f"{c['verdict_pseudo_label_new']} | {c['verdict_heldout_these']} / {c['verdict_heldout_new']} | "
+            f"{c['scenes']} × {c['seeds']} |"
+        )
+    lines += ["", "Not run here: " + "; ".join(NOT_HERE.values()) + "."]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("tables", type=Path, help="the folder with table2/ ... table7/ (each with results.csv)")
+    ap.add_argument("--step", type=int, default=None, help="read every run at this training budget (default: last)")
+    ap.add_argument("--markdown", action="store_true", help="print README's markdown table instead of JSON")
+    args = ap.parse_args(argv)
+    claims = judge(args.tables, args.step)
+    print(markdown(claims) if args.markdown else json.dumps(claims, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
