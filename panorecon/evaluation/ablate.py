@@ -161,12 +161,13 @@ def _reused(rec: dict, row: Row) -> dict:
     }
 
 
-def _block_order(rows: list[Row]) -> list[Row]:
-    """``rows`` ordered by (seed, scene) block, first appearance first: the runs of one block finish together,
-    so a table interrupted between sittings holds whole blocks, each computed by one version of the code."""
-    blocks = list(dict.fromkeys((r.seed, r.scene) for r in rows))
-    rank = {b: i for i, b in enumerate(blocks)}
-    return sorted(rows, key=lambda r: rank[(r.seed, r.scene)])
+def _block_order(todo: list[Row], every: list[Row]) -> list[Row]:
+    """``todo`` ordered by (scene, seed) block: scenes in their order of first appearance in ``every`` (all the
+    suites' rows), each scene's seeds ascending. The runs of one block finish together, so a table interrupted
+    between sittings holds whole blocks, each computed by one version of the code, and the order does not
+    depend on what is already done."""
+    scenes = list(dict.fromkeys(r.scene for r in every))
+    return sorted(todo, key=lambda r: (scenes.index(r.scene), r.seed))
 
 
 def run_suites(
@@ -183,7 +184,7 @@ def run_suites(
     """Run every row of ``suites`` once: a run that several suites share (same settings: same ``Row.run_id``)
     computes once and appears in each. Runs already in a results.csv under ``out_dir`` (this suite's or another's
     of the same invocation) are not run again, cache or no cache; the others are computed (or read from the
-    stage cache), (seed, scene) block by block, and every results.csv is rewritten as each run finishes.
+    stage cache), (scene, seed) block by block, and every results.csv is rewritten as each run finishes.
     Writes results.csv, results.md, plots and report.html per suite (``suite_out_dirs``). ``threads``: torch
     threads per worker (0: cores // jobs). ``device``: where the stages compute (auto, cpu, cuda); a cached
     stage keeps the device it ran on."""
@@ -233,7 +234,7 @@ def run_suites(
             record(task, {"points": {**pts, "cached": True}, "train": tr and {**tr, "cached": True}})
         else:
             todo.append(task)
-    todo = [keyed[r.run_id()] for r in _block_order([t[0] for t in todo])]
+    todo = [keyed[r.run_id()] for r in _block_order([t[0] for t in todo], [t[0] for t in keyed.values()])]
     print(
         f"{len(keyed)} distinct runs: {len(keyed) - len(done_csv.keys() & keyed.keys()) - len(todo)} in the stage "
         f"cache, {len(done_csv.keys() & keyed.keys())} in results.csv, {len(todo)} to run",

@@ -133,3 +133,12 @@ def test_set_overrides_the_defaults_of_every_suite_and_refuses_a_row_variable(tm
         load_suite(tmp_path / "table_a.toml", overrides={"iters": -1})
     with pytest.raises(PanoreconInputError, match="expected KEY=VALUE"):
         parse_override("iters")
+
+
+def test_runs_go_in_scene_seed_blocks_whatever_is_already_done():
+    from panorecon.pipeline import Row
+
+    every = [Row(scene, 64, "fibonacci", None, seed=seed) for scene in ("b", "a") for seed in (2, 0, 1)]
+    todo = [r for r in every if (r.scene, r.seed) != ("b", 0)]  # one block already done
+    order = [(r.scene, r.seed) for r in ablate._block_order(todo, every)]
+    assert order == [("b", 1), ("b", 2), ("a", 0), ("a", 1), ("a", 2)]
