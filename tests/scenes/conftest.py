@@ -162,3 +162,50 @@ def write_stanford2d3d_pano(root, area, pano, centre, yaw_deg, h=64, global_xyz=
     if global_xyz:
         write_exr_xyz(base / "global_xyz" / f"{stem}global_xyz.exr", pts)
     return pts
+
+
+# ---------------------------------------------------------------- a posed-panoramas folder (panorecon's own layout)
+def documented_directions(h: int, w: int) -> np.ndarray:
+    """Camera-frame ray of every pixel [h, w, 3] as docs/guide.md "Your own posed panoramas" states it (not
+    panorecon.geometry): pixel (r, c) looks at lon = 2 pi ((c + 0.5) / w - 0.5), lat = pi (0.5 - (r + 0.5) / h),
+    direction (cos lat cos lon, -cos lat sin lon, sin lat): the centre column along +x, +y a quarter of the width
+    from the left edge, +z the top row."""
+    lon = 2 * np.pi * ((np.arange(w) + 0.5) / w - 0.5)
+    lat = np.pi * (0.5 - (np.arange(h) + 0.5) / h)
+    lon, lat = np.meshgrid(lon, lat)
+    return np.stack([np.cos(lat) * np.cos(lon), -np.cos(lat) * np.sin(lon), np.sin(lat)], -1)
+
+
+def axis_angle(axis, deg: float) -> np.ndarray:
+    """Rodrigues: the rotation [3, 3] by ``deg`` (right hand) about ``axis``."""
+    k = np.asarray(axis, float) / np.linalg.norm(axis)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    t = np.radians(deg)
+    return np.eye(3) + np.sin(t) * kx + (1 - np.cos(t)) * kx @ kx
+
+
+def axis_angle_quaternion(axis, deg: float) -> list[float]:
+    """The same rotation as a unit quaternion [w, x, y, z]: (cos t/2, sin t/2 * axis)."""
+    k = np.asarray(axis, float) / np.linalg.norm(axis)
+    t = np.radians(deg)
+    return [float(np.cos(t / 2)), *map(float, np.sin(t / 2) * k)]
+
+
+def write_posed_panorama(root, name, centre, rotation, h=64, unit_per_m=1000.0, depth=True, furniture=()):
+    """``root/<name>.png`` (and ``root/<name>_depth.png``, 16-bit, ``unit_per_m`` stored values per metre) of
+    ROOM seen from ``centre`` with camera axes ``rotation`` (world = rotation @ camera). Returns the pose entry
+    (rotation as a matrix) and the world points [h, 2h, 3] of its pixels."""
+    dirs = documented_directions(h, 2 * h) @ np.asarray(rotation, float).T
+    dist = cast(np.asarray(centre, float), dirs, ROOM, furniture)
+    pts = np.asarray(centre, float) + dist[..., None] * dirs
+    write_image(root / f"{name}.png", colour(pts))
+    entry = {"name": name, "image": f"{name}.png", "position": list(map(float, centre))}
+    entry["rotation"] = np.asarray(rotation, float).tolist()
+    if depth:
+        png16(root / f"{name}_depth.png", dist, unit_per_m)
+        entry["depth"] = f"{name}_depth.png"
+    return entry, pts
+
+
+def write_poses(root, entries, **top):
+    (root / "poses.json").write_text(json.dumps({**top, "panoramas": entries}))
