@@ -396,7 +396,9 @@ def report_table(report: CheckReport) -> str:
         own = c.candidates[0]
         parts = [
             f"{m} {_f(own[m])} vs {_f(max((x[m] for x in c.candidates[1:] if x[m] is not None), default=None))}"
-            f" ({c.best_alternative[m] or 'n/a'}; margin {_f(c.margin[m], True)})"
+            f" ({c.best_alternative[m]}; margin {_f(c.margin[m], True)})"
+            if c.best_alternative[m]
+            else f"{m} {_f(own[m])}"
             for m in MEASURES
         ]
         lines.append(f"convention of {c.group} ({c.panoramas} panoramas): {', '.join(parts)}: {c.verdict}")
@@ -405,7 +407,7 @@ def report_table(report: CheckReport) -> str:
     w = max([len(r.name) for r in results] + [9])
     lines.append(f"{'panorama':<{w}}  {'agreement':>9}  {'agreeing':>8}  {'walls':>6}  verdict")
     for r in results:
-        verdict = "FLAGGED" if r.flags else ("ok" if r.agreement is not None else "-")
+        verdict = "FLAGGED" if r.flags else ("ok" if r.agreement is not None and r.agreement >= AGREE_MIN else "-")
         lines.append(
             f"{r.name:<{w}}  {_f(r.agreement):>9}  {_f(r.agree_fraction):>8}  {_f(r.wall_on_planes):>6}  {verdict}"
         )
@@ -414,13 +416,11 @@ def report_table(report: CheckReport) -> str:
 
 
 def summary_line(report: CheckReport) -> str:
-    n_alt = len(ALTERNATIVES)
     return (
         f"{len(report.panoramas)} panoramas, {sum(bool(p.flags) for p in report.panoramas)} flagged; "
         f"{len(report.conventions)} spaces, {sum(bool(c.flags) for c in report.conventions)} conventions flagged "
-        f"(convention: the adapter's orientation and depth unit against the {n_alt} other quarter turns and mirrors "
-        f"about the vertical and the other depth units ({', '.join(u for u, _ in DEPTH_UNITS)}), over each whole "
-        f"space, flagged when one beats it by more than {CONVENTION_MARGIN} in agreeing or walls; panorama: "
-        f"true distances within {AGREE_REL_TOL:.0%} where two panoramas see the same surface, flagged below "
-        f"{AGREE_MIN}; walls: wall-band pixels within {PLANE_TOL_M * 100:.0f} cm of an annotated plane)"
+        f"(a space's convention against the {len(ALTERNATIVES)} other quarter turns and mirrors and the other depth "
+        f"units, flagged when one beats it by more than {CONVENTION_MARGIN} in agreeing or walls; a panorama "
+        f"flagged below {AGREE_MIN} agreement: true distances within {AGREE_REL_TOL:.0%} where two panoramas see "
+        f"the same surface; walls: wall-band pixels within {PLANE_TOL_M * 100:.0f} cm of an annotated plane)"
     )

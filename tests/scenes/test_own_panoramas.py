@@ -67,9 +67,13 @@ def test_quaternion_is_the_same_rotation(tmp_path):
     write_poses(tmp_path, [entry], depth_unit="mm")
     s = load_scene(f"panoramas:{tmp_path}/desk")
     np.testing.assert_allclose(s.meta["rotation"], r, atol=1e-12)
-    np.testing.assert_allclose(
-        quaternion_matrix([np.cos(0.5), 0, 0, np.sin(0.5)]), axis_angle([0, 0, 1], np.degrees(1.0))
-    )
+    # the outside convention: SciPy's Rotation (scalar-last [x, y, z, w], Hamilton) on the same quaternions
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    for q in rng.normal(size=(5, 4)):
+        q /= np.linalg.norm(q)
+        np.testing.assert_allclose(quaternion_matrix(q), Rotation.from_quat([*q[1:], q[0]]).as_matrix(), atol=1e-12)
     assert s.meta["heldout_note"].startswith("n/a: no other panorama")
 
 
