@@ -342,6 +342,9 @@ def read_poses(root: Path) -> dict[str, Panorama]:
     entries = data.get("panoramas") if isinstance(data, dict) else None
     if not isinstance(entries, list) or not entries:
         raise PanoreconInputError(f'{path}: expected {{"panoramas": [{{"image": ..., "position": ..., ...}}, ...]}}')
+    unknown = sorted(set(data) - {"panoramas", "depth_unit"})
+    if unknown:
+        raise PanoreconInputError(f"{path}: unknown key {unknown[0]!r}; expected panoramas and optionally depth_unit")
     default_unit = data.get("depth_unit")
     out: dict[str, Panorama] = {}
     for i, entry in enumerate(entries):

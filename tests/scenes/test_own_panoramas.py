@@ -164,6 +164,7 @@ BAD = {
     "no unit": (lambda d: d.pop("depth_unit"), r"depth_unit None is not one of"),
     "short position": (lambda d: _entry(d, "desk").update(position=[1, 2]), r"'desk': position \(metres\): \[1, 2\]"),
     "unknown key": (lambda d: _entry(d, "desk").update(rotaton=1), r"'desk': unknown key 'rotaton'"),
+    "unknown top-level key": (lambda d: d.update(unit="mm"), r"poses.json: unknown key 'unit'"),
     "duplicate name": (lambda d: _entry(d, "desk").update(name="hall"), r"'hall': expected a unique name"),
 }
 
