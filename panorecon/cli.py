@@ -90,30 +90,23 @@ def cmd_scenes_list(args) -> int:
 
 
 def cmd_scenes_check(args) -> int:
-    import dataclasses
-
     from .io import write_json
-    from .scenes.check import AGREE_MIN, AGREE_REL_TOL, PLANE_MIN, PLANE_TOL_M, check_root, report_table
+    from .scenes.check import check_root, report_table, summary_line
     from .scenes.datasets import list_root
 
     if not Path(args.root).is_dir():
         raise PanoreconInputError(f"{args.root}: not a folder; expected a dataset folder")
     if not list_root(Path(args.root)):
-        raise PanoreconInputError(f"{args.root}: no Stanford2D3D, Structured3D or Matterport3D panorama under it")
-    results = check_root(Path(args.root), args.width)
-    print(report_table(results))
-    flagged = [r.name for r in results if r.flags]
-    print(
-        f"{len(results)} panoramas, {len(flagged)} flagged (agreement: true distances within "
-        f"{AGREE_REL_TOL:.0%} where two panoramas see the same surface, flagged below {AGREE_MIN}; walls: "
-        f"wall-band pixels within {PLANE_TOL_M * 100:.0f} cm of an annotated plane, flagged below {PLANE_MIN})"
-    )
-    if args.json:
-        write_json(
-            args.json,
-            {"root": str(args.root), "width": args.width, "panoramas": [dataclasses.asdict(r) for r in results]},
+        raise PanoreconInputError(
+            f"{args.root}: no Stanford2D3D, Structured3D or Matterport3D panorama under it, and no poses.json "
+            "(a posed-panoramas folder)"
         )
-    return 1 if flagged else 0
+    report = check_root(Path(args.root), args.width)
+    print(report_table(report))
+    print(summary_line(report))
+    if args.json:
+        write_json(args.json, {"root": str(args.root), "width": args.width, **report.to_dict()})
+    return 1 if report.flagged else 0
 
 
 def cmd_render(args) -> int:

@@ -13,6 +13,9 @@ where each comes from and its licence.
   orientation fixed by the dataset (centre column along +y, +x to its right, +z up).
 - ``matterport3d:<root>/<scene>/<pano>``: ``<scene>/pano_color/<pano>.jpg``, ``<scene>/pano_depth/<pano>.png``;
   depth 16-bit PNG, 1/4000 m, ray distance; no pose.
+- ``panoramas:<dir>/<name>``: a user's own posed panoramas, ``<dir>/poses.json`` (``read_poses``; the layout is
+  documented in docs/guide.md, "Your own posed panoramas"): images, optional depth with its unit, and each
+  panorama's position and rotation in panorecon's own convention; one space.
 
 A panorama's pose is its centre (metres, the dataset's world frame) and ``rotation`` [3, 3]: the dataset-world
 direction of a panorecon sphere direction (``geometry/sphere.py``: centre column along +x, +y to its left,
@@ -42,7 +45,7 @@ class Panorama:
 
     name: str
     rgb: Path
-    depth: DepthSpec
+    depth: DepthSpec | None
     position: np.ndarray | None
     rotation: np.ndarray | None = None
     orientation: str = "none: the dataset gives no pose"
@@ -262,6 +265,134 @@ def _mp3d_keys(root: Path) -> list[str]:
     return sorted({f"{p.parents[1].name}/{p.stem}" for e in ("jpg", "png") for p in root.glob(f"*/pano_color/*.{e}")})
 
 
+# ---------------------------------------------------------------- your own posed panoramas
+# Not a dataset's convention but panorecon's own (geometry/sphere.py, DESIGN.md): the world frame is right-handed,
+# +z up, metres; a panorama's ``rotation`` R maps its camera frame to the world, world direction = R @ d(lon, lat)
+# with d = (cos lat cos lon, -cos lat sin lon, sin lat), lon = 0 at the image's centre column, growing to the right;
+# so R's columns are the world directions of the centre column on the horizon (+x), of the column a quarter of the
+# width from the left edge (+y) and of the top row (+z). ``quaternion`` [w, x, y, z] is the same rotation
+# (Hamilton, unit). Tested on a fixture whose pixels are turned into rays from this text in the test.
+POSES_FILE = "poses.json"
+DEPTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "1/512 m": 1 / 512, "1/4000 m": 1 / 4000}
+ROTATION_TOL = 1e-3  # max |R^T R - I| entry, |det R - 1| and | |q| - 1 | accepted (then made exact)
+_POSE_KEYS = ("name", "image", "position", "rotation", "quaternion", "depth", "depth_unit")
+
+
+def quaternion_matrix(q) -> np.ndarray:
+    """Unit quaternion [w, x, y, z] (Hamilton) -> rotation matrix [3, 3] float64."""
+    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _numbers(value, shape, what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, np.float64)
+    except (ValueError, TypeError):
+        arr = None
+    if arr is None or arr.shape != shape or not np.isfinite(arr).all():
+        raise PanoreconInputError(f"{what}: {json.dumps(value)} is not {' x '.join(map(str, shape))} finite numbers")
+    return arr
+
+
+def _pose_rotation(entry: dict, what: str) -> np.ndarray:
+    if ("rotation" in entry) == ("quaternion" in entry):
+        raise PanoreconInputError(
+            f"{what}: expected exactly one of rotation (3x3, camera axes to world axes) or quaternion [w, x, y, z]"
+        )
+    if "quaternion" in entry:
+        q = _numbers(entry["quaternion"], (4,), f"{what}: quaternion")
+        if abs(np.linalg.norm(q) - 1) > ROTATION_TOL:
+            raise PanoreconInputError(
+                f"{what}: quaternion {q.tolist()} has length {np.linalg.norm(q):.4f}; expected a unit quaternion "
+                f"[w, x, y, z] (length 1 within {ROTATION_TOL})"
+            )
+        return quaternion_matrix(q)
+    r = _numbers(entry["rotation"], (3, 3), f"{what}: rotation")
+    err = float(np.abs(r.T @ r - np.eye(3)).max())
+    if err > ROTATION_TOL:
+        raise PanoreconInputError(
+            f"{what}: rotation is not orthonormal (max |R^T R - I| = {err:.3g}); expected a rotation matrix within "
+            f"{ROTATION_TOL}"
+        )
+    det = float(np.linalg.det(r))
+    if abs(det - 1) > ROTATION_TOL:
+        raise PanoreconInputError(
+            f"{what}: rotation has determinant {det:.4f} (a mirror); expected a proper rotation, determinant +1"
+        )
+    u, _, vt = np.linalg.svd(r)
+    return u @ vt  # the nearest exact rotation
+
+
+def read_poses(root: Path) -> dict[str, Panorama]:
+    """``<root>/poses.json`` -> {name: Panorama}, every entry checked (files present, pose a rotation, unit
+    known) before any is used; one PanoreconInputError naming the file and what was expected otherwise."""
+    path = Path(root) / POSES_FILE
+    if not path.is_file():
+        raise PanoreconInputError(f"{path}: no such file (the poses file of a posed-panoramas folder)")
+    try:
+        data = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise PanoreconInputError(f"{path}: not valid JSON ({e})") from None
+    entries = data.get("panoramas") if isinstance(data, dict) else None
+    if not isinstance(entries, list) or not entries:
+        raise PanoreconInputError(f'{path}: expected {{"panoramas": [{{"image": ..., "position": ..., ...}}, ...]}}')
+    unknown = sorted(set(data) - {"panoramas", "depth_unit"})
+    if unknown:
+        raise PanoreconInputError(f"{path}: unknown key {unknown[0]!r}; expected panoramas and optionally depth_unit")
+    default_unit = data.get("depth_unit")
+    out: dict[str, Panorama] = {}
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, dict) or "image" not in entry:
+            raise PanoreconInputError(f"{path}: panoramas[{i}] is not an object with an image")
+        name = str(entry.get("name", Path(str(entry["image"])).stem))
+        what = f"{path}: panorama {name!r}"
+        unknown = sorted(set(entry) - set(_POSE_KEYS))
+        if unknown:
+            raise PanoreconInputError(
+                f"{what}: unknown key {unknown[0]!r}; expected keys among {', '.join(_POSE_KEYS)}"
+            )
+        if not name or "/" in name or "\\" in name or name in out:
+            raise PanoreconInputError(f"{what}: expected a unique name without '/' (names a panorama in a scene name)")
+        rgb = _need(Path(root) / str(entry["image"]), f"image of panorama {name!r} in {path}")
+        position = _numbers(entry.get("position"), (3,), f"{what}: position (metres)")
+        rotation = _pose_rotation(entry, what)
+        depth = None
+        if "depth" in entry:
+            unit = entry.get("depth_unit", default_unit)
+            if unit not in DEPTH_UNITS:
+                raise PanoreconInputError(
+                    f"{what}: depth_unit {unit!r} is not one of {', '.join(DEPTH_UNITS)} (metres per stored value of "
+                    f"{entry['depth']})"
+                )
+            dpath = _need(Path(root) / str(entry["depth"]), f"depth of panorama {name!r} in {path}")
+            depth = DepthSpec(dpath, DEPTH_UNITS[unit], "distance", source=f"{POSES_FILE}, {unit}")
+        out[name] = Panorama(f"panoramas:{name}", rgb, depth, position, rotation, f"{POSES_FILE} (panorecon's frame)")
+    return out
+
+
+def _own_locate(root: Path, key: str) -> Panorama:
+    if not (root / POSES_FILE).is_file() and (root / key / POSES_FILE).is_file():
+        names = ", ".join(sorted(read_poses(root / key)))
+        raise PanoreconInputError(
+            f"scene 'panoramas:{root / key}' names the folder; expected panoramas:{root / key}/NAME, NAME one of "
+            f"{names}"
+        )
+    poses = read_poses(root)
+    if key not in poses:
+        raise PanoreconInputError(f"{root / POSES_FILE}: no panorama {key!r}; expected one of {', '.join(poses)}")
+    return poses[key]
+
+
+def _own_keys(root: Path) -> list[str]:
+    return sorted(read_poses(root)) if (Path(root) / POSES_FILE).is_file() else []
+
+
 DATASETS = {
     d.prefix: d
     for d in (
@@ -288,6 +419,14 @@ DATASETS = {
             _mp3d_locate,
             _mp3d_keys,
             lambda key: key.split("/")[0],
+        ),
+        Dataset(
+            "panoramas",
+            f"your own posed panoramas ({POSES_FILE}), <dir>/<name>",
+            1,
+            _own_locate,
+            _own_keys,
+            lambda key: POSES_FILE,
         ),
     )
 }
@@ -324,6 +463,8 @@ def load_dataset_scene(name: str, width: int | None = None):
     others, note = [], None
     if pano.position is None or pano.rotation is None:
         note = f"n/a: {pano.name} has no full pose (orientation {pano.orientation})"
+    elif pano.depth is None:
+        note = f"n/a: {pano.name} has no true depth (held-out pixels are those it sees too)"
     else:
         group = ds.group(key)
         others = [f"{ds.prefix}:{root / k}" for k in ds.keys(root) if k != key and ds.group(k) == group]
@@ -345,7 +486,8 @@ def load_dataset_scene(name: str, width: int | None = None):
         name=pano.name,
         depth=pano.depth,
         meta=meta,
-        description=f"{ds.description.split(',')[0]}: {key}, true depth ({pano.depth.source})",
+        description=f"{ds.description.split(',')[0]}: {key}, "
+        + (f"true depth ({pano.depth.source})" if pano.depth else "no depth"),
     )
 
 
@@ -369,7 +511,7 @@ def heldout_panoramas(scene) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, n
     out = []
     for name in scene.meta["others"]:
         other = load_dataset_scene(name, scene.width)
-        if other.meta["rotation"] is None:
+        if other.meta["rotation"] is None or other.distance is None:
             continue
         r_other = np.asarray(other.meta["rotation"], np.float64)
         offset = rot.T @ (np.asarray(other.meta["position"]) - here)

@@ -60,8 +60,9 @@ def list_scenes() -> list[SceneSpec]:
 
 def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
     """A scene by registered name, a dataset panorama (``stanford2d3d:``, ``structured3d:``, ``matterport3d:``,
-    see ``datasets.py``), or an equirectangular image given by path. ``depth``: a ``real.DepthSpec``, the true
-    depth of a real panorama (refused for synthetic and dataset scenes, which carry their own)."""
+    ``panoramas:``, see ``datasets.py``), or an equirectangular image given by path. ``depth``: a
+    ``real.DepthSpec``, the true depth of a real panorama (refused for synthetic and dataset scenes, which carry
+    their own)."""
     _ensure_builtin()
     from .datasets import is_dataset_name, load_dataset_scene
     from .real import scene_from_image, with_depth
@@ -92,7 +93,7 @@ def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
         return scene_from_image(Path(name), width, depth=depth)
     raise PanoreconInputError(
         f"unknown scene {name!r}: expected one of {', '.join(sorted(_SCENES))}, a dataset panorama "
-        "(stanford2d3d:, structured3d:, matterport3d:), the path of an equirectangular image, "
+        "(stanford2d3d:, structured3d:, matterport3d:, panoramas:), the path of an equirectangular image, "
         "or a folder written by `panorecon render`"
     )
 
