@@ -126,3 +126,29 @@ def test_refused_alignment_reads_na_with_its_reason(spaces):
     s = _aligned_scores(flat, "n/a: LPIPS left out of this test", None)
     assert "rank-deficient" in s["aligned_psnr"] and s["aligned_psnr_views"] == 0
     assert s["aligned_ssim"] == s["aligned_psnr"] and isinstance(s["oracle_psnr"], float)
+
+
+def main(iters: int = 300) -> None:
+    """The fixture's held-out numbers after training Gaussians on the first panorama (its true cloud as the
+    initialisation): raw, colour-aligned and oracle, on the unchanged and the changed second panorama.
+    ``python -m tests.splat.test_heldout_aligned`` from the repository root."""
+    import tempfile
+    from pathlib import Path
+
+    from panorecon.splat.trainer import TrainConfig, train
+
+    world = load_scene("bedroom", 256).world
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, change in (("unchanged", False), ("exposure + white balance", True)):
+            scene = _write_space(Path(tmp) / name, world, change)
+            cfg = TrainConfig(iters=iters, labels=60, res=RES, heldout=VIEWS, seed=SEED, history_every=0)
+            h = train(scene, scene.point_cloud(), cfg, Path(tmp) / f"run_{change}", progress=False)["held-out"]
+            print(
+                f"{name}: raw {h['psnr']:.2f} dB, aligned {h['aligned_psnr']:.2f} dB (SSIM {h['aligned_ssim']}), "
+                f"oracle {h['oracle_psnr']:.2f} dB, oracle aligned {h['oracle_aligned_psnr']:.2f} dB "
+                f"({h['views']} views, {h['covisible_fraction']:.3f} of their pixels co-visible)"
+            )
+
+
+if __name__ == "__main__":
+    main()
