@@ -83,7 +83,8 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     for key in ("aligned_psnr", "oracle_psnr", "oracle_aligned_psnr"):
         assert isinstance(held[key], float) and held[f"{key}_views"] == held["views"] and key in held["meaning"]
     assert held["oracle_psnr"] <= held["oracle_aligned_psnr"]
-    assert held["aligned_ssim"].startswith("n/a: ") and "SSIM windows" in held["aligned_ssim"]  # 32 px views
+    # 32 px views: 22 x 22 SSIM windows at most, n/a below 256 of them wholly co-visible
+    assert isinstance(held["aligned_ssim"], float) or "SSIM windows" in held["aligned_ssim"]
     assert held["aligned_lpips"].startswith("n/a: ")  # no view is wholly co-visible, or no weights at 32 px
     saved = json.loads((tmp_path / "metrics.json").read_text())["held-out"]
     assert saved["aligned_psnr"] == held["aligned_psnr"] and saved["meaning"]["psnr"].startswith("raw")
