@@ -17,9 +17,11 @@ def demo_pictures(
 ) -> dict:
     """From OUT/point_cloud.ply: OUT/renders/heldout_{size}_k.png (render | truth, ``size`` px tall; the first
     ``views`` held-out poses of a training run with this ``seed``) on scenes with a world, and
-    OUT/panorama.png (input above, render from the centre below, 8 bits). Returns that picture's PSNR (dB)."""
+    OUT/panorama.png (input above, render from the centre below, 8 bits). Returns that picture's PSNR and
+    WS-PSNR (dB) and WS-SSIM: panorama_psnr, panorama_ws_psnr, panorama_ws_ssim."""
     import json
 
+    from .metrics.panorama import panorama_scores
     from .splat.labels import in_cloud_frame, make_heldout_views
     from .splat.panorama import render_panorama
     from .splat.ply import load_ply
@@ -57,6 +59,12 @@ def demo_pictures(
             )
     pano = (render_panorama(model, scene.height, backend=backend) * 255).round().astype(np.uint8)
     write_image(out / "panorama.png", np.concatenate([scene.rgb.astype(np.uint8), pano], 0))
-    # the PSNR of the picture as written (8 bits), so that anyone can recompute it from panorama.png
+    # the PSNR of the picture as written (8 bits), so that anyone can recompute it from panorama.png; beside it
+    # WS-PSNR and WS-SSIM, each ERP pixel weighted by its solid angle (metrics/panorama.py)
     mse = float(np.mean((pano.astype(np.float64) / 255 - scene.rgb.astype(np.float64) / 255) ** 2))
-    return {"panorama_psnr": math.inf if mse == 0 else 10 * math.log10(1 / mse)}
+    ws = panorama_scores(pano.astype(np.float64) / 255, scene.rgb.astype(np.float64) / 255)
+    return {
+        "panorama_psnr": math.inf if mse == 0 else 10 * math.log10(1 / mse),
+        "panorama_ws_psnr": ws["ws_psnr"],
+        "panorama_ws_ssim": ws["ws_ssim"],
+    }

@@ -317,6 +317,12 @@ def _num(v):
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
 
 
+# the held-out scores of other panoramas beside the raw psnr_ho: after a per-view colour alignment, and the
+# reprojection oracle (the training panorama's colour at the true points) raw and aligned; results.csv column
+# heldout_<key>, with heldout_<key>_note holding the reason where it reads n/a
+HELDOUT_ALIGNED_KEYS = ("aligned_psnr", "aligned_ssim", "aligned_lpips", "oracle_psnr", "oracle_aligned_psnr")
+
+
 def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: bool, train_cached: bool) -> dict:
     """One results.csv row from the finished stages' records (points ``pts``, training ``tr``): the row's
     settings, every metric with its protocol, seconds per stage, peak memory, versions, commit, and which
@@ -380,6 +386,12 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
                 rec[f"psnr_{tag}_note"] = m.get(proto)
             elif isinstance(block.get("psnr"), str):  # e.g. held-out panoramas with too few co-visible pixels
                 rec[f"psnr_{tag}_note"] = block["psnr"]
+        held = m.get("held-out")
+        if isinstance(held, dict) and "aligned_psnr" in held:  # held-out views of other panoramas (trainer.py)
+            for key in HELDOUT_ALIGNED_KEYS:
+                rec[f"heldout_{key}"] = _num(held.get(key))
+                if isinstance(held.get(key), str):
+                    rec[f"heldout_{key}_note"] = held[key]
         rec.update(
             device=m.get("device", "cpu"),
             device_name=m.get("device_name", "unrecorded"),

@@ -3,6 +3,8 @@ scale and shift in inverse depth for affine-invariant predictions."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 METRIC_CHUNK = 1 << 22  # pixels per chunk of depth_metrics' sums
@@ -109,3 +111,33 @@ def edge_depth_metrics(
     p, t = pred[near].astype(np.float64) * scale, truth[near].astype(np.float64)
     rel = float(np.mean(np.abs(p - t) / t)) if len(t) else float("nan")
     return {"edge_abs_rel": rel, "edge_pixels": int(len(t)), "jump": jump, "px": px}
+
+
+def ws_depth_metrics(pred: np.ndarray, truth: np.ndarray, scale: float, mask: np.ndarray | None = None) -> dict:
+    """``depth_metrics``' AbsRel, RMSE (metres) and delta1 of ERP distance maps [H, W] with ``pred`` x ``scale``
+    (the plain metrics' alignment), each pixel weighted by its row's solid angle (``metrics.panorama``'s WS
+    weights, cos latitude) over the pixels where both are finite and positive (and ``mask``): ws_abs_rel,
+    ws_rmse, ws_delta1 (NaN with no such pixel). Float64."""
+    from .panorama import erp_row_weights
+
+    if pred.shape != truth.shape or pred.ndim != 2:
+        raise ValueError(f"ws_depth_metrics: prediction {pred.shape} and truth {truth.shape}: expected one [H, W]")
+    H, W = pred.shape
+    weights = erp_row_weights(H)
+    total, rel, sq, d1 = 0.0, 0.0, 0.0, 0.0
+    step = max(1, METRIC_CHUNK // max(W, 1))  # rows per chunk: float64 temporaries of at most METRIC_CHUNK pixels
+    for r in range(0, H, step):
+        pc, tc = pred[r : r + step], truth[r : r + step]
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(pc) & np.isfinite(tc) & (pc > 0) & (tc > 0)
+        if mask is not None:
+            ok &= mask[r : r + step]
+        w = np.broadcast_to(weights[r : r + step, None], pc.shape)[ok]
+        p, t = pc[ok].astype(np.float64) * scale, tc[ok].astype(np.float64)
+        total += float(np.sum(w))
+        rel += float(np.sum(w * np.abs(p - t) / t))
+        sq += float(np.sum(w * (p - t) ** 2))
+        d1 += float(np.sum(w * (np.maximum(p / t, t / p) < 1.25)))
+    if total == 0:
+        return {"ws_abs_rel": float("nan"), "ws_rmse": float("nan"), "ws_delta1": float("nan")}
+    return {"ws_abs_rel": rel / total, "ws_rmse": math.sqrt(sq / total), "ws_delta1": d1 / total}

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..geometry import back_project_erp, thin_on_sphere
 from ..io import PanoreconInputError, peak_rss_mb
-from ..metrics import depth_metrics, edge_depth_metrics, point_metrics
+from ..metrics import depth_metrics, edge_depth_metrics, point_metrics, ws_depth_metrics
 from ..teachers import get_teacher, seeded_teacher
 from ..teachers.base import true_view_distance
 from .registry import get_source
@@ -168,6 +168,8 @@ def run_source(
             dm = depth_metrics(distance, scene.distance, "none" if metric else "median", ~scene.sky)
             few = dm["pixels"] < MIN_METRIC_PIXELS
             scale = dm["scale"] if math.isfinite(dm["scale"]) and not few else 1.0
+            if not few:  # the same comparison with each ERP pixel weighted by its solid angle (cos latitude)
+                dm.update(ws_depth_metrics(distance, scene.distance, dm["scale"], ~scene.sky))
             report["depth"] = (
                 f"n/a: {dm['pixels']} pixels with both prediction and truth (fewer than {MIN_METRIC_PIXELS})"
                 if few

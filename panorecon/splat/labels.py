@@ -30,13 +30,17 @@ from ..geometry import (
 class LabelView:
     """camera; rgb [h, w, 3] float32 in [0, 1]; depth [h, w] float32 z-depth (metres or the teacher's units,
     NaN unknown) or None; mask [h, w] bool: the pixels a score may use (None: all); background [h, w, 3] float32
-    in [0, 1] composited behind the Gaussians (the sky environment, see splat/initial.py) or None."""
+    in [0, 1] composited behind the Gaussians (the sky environment, see splat/initial.py) or None; oracle
+    [h, w, 3] float32 in [0, 1], NaN outside the mask, or None: for a held-out view of another panorama, the
+    training panorama's colour at each masked pixel's true 3D point (the best any reconstruction from that
+    panorama can show there, its capture's exposure included)."""
 
     camera: PinholeCamera
     rgb: np.ndarray
     depth: np.ndarray | None = None
     mask: np.ndarray | None = None
     background: np.ndarray | None = None
+    oracle: np.ndarray | None = None
 
 
 def make_pseudo_labels(
@@ -119,7 +123,9 @@ def make_panorama_heldout_views(
     along the rotated rays. Its mask keeps the pixels the training panorama sees too: the pixel's true 3D point
     X (from the held-out panorama's depth) must be valid there and lie, seen from the scene's centre, within
     5 % of the scene's own true distance along X's direction (otherwise it is occluded from, or unknown to,
-    the panorama the Gaussians were trained on). The scene needs a true distance."""
+    the panorama the Gaussians were trained on). Its oracle is the training panorama's colour (``scene.rgb``,
+    bilinear) along the direction of X from the scene's centre, on the masked pixels. The scene needs a true
+    distance."""
     if scene.distance is None or not panoramas:
         raise ValueError(f"scene {scene.name!r}: held-out panoramas need the scene's true depth and other panoramas")
     rng = np.random.default_rng(seed)
@@ -140,7 +146,9 @@ def make_panorama_heldout_views(
             mask = np.isfinite(d) & np.isfinite(seen) & (np.abs(seen - r) <= COVISIBLE_REL_TOL * r)
         img = sample_erp(rgb, local, "linear").astype(np.float32) / 255.0
         z = np.where(mask, d / cam.z_to_distance_factor(), np.nan).astype(np.float32)
-        views.append(LabelView(cam, img, z, mask))
+        oracle = np.full(img.shape, np.nan, np.float32)
+        oracle[mask] = sample_erp(scene.rgb, x[mask] / r[mask][:, None], "linear").astype(np.float32) / 255.0
+        views.append(LabelView(cam, img, z, mask, oracle=oracle))
     return views
 
 

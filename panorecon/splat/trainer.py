@@ -210,7 +210,11 @@ def _view_psnr(model, v, cfg, backend) -> float | None:
     """PSNR (dB) of one view over its mask (all pixels without one); None below MIN_COVISIBLE_PIXELS."""
     if v.mask is not None and int(v.mask.sum()) < MIN_COVISIBLE_PIXELS:
         return None
-    img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
+    return _render_psnr(_render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1), v)
+
+
+def _render_psnr(img: torch.Tensor, v: LabelView) -> float:
+    """PSNR (dB) of a render [h, w, 3] (clamped to [0, 1]) against view ``v`` over its mask (all pixels without)."""
     t = torch.from_numpy(v.rgb).to(img.device)
     if v.mask is None:
         return psnr(img, t)
@@ -244,14 +248,18 @@ def _evaluate(model, views, cfg, backend) -> dict:
 def _evaluate_masked(model, views, cfg, backend) -> dict:
     """PSNR over each view's masked pixels (the co-visible ones of a real held-out panorama), averaged over the
     views with at least MIN_COVISIBLE_PIXELS of them ('n/a: <reason>' with none); SSIM and LPIPS need whole
-    windows, so they read n/a."""
-    ps, pixels = [], 0
+    windows, so they read n/a. Beside it (``_aligned_scores``): the render after a per-view affine colour
+    alignment onto the held-out image, and the reprojection oracle (the training panorama's own colour at the
+    true 3D points) raw and aligned: the ceiling the raw number is read against."""
+    ps, pixels, kept = [], 0, []
     with torch.no_grad():
         for v in views:
-            p = _view_psnr(model, v, cfg, backend)
-            if p is not None:
-                ps.append(p)
-                pixels += int(v.mask.sum())
+            if v.mask is not None and int(v.mask.sum()) < MIN_COVISIBLE_PIXELS:
+                continue
+            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
+            ps.append(_render_psnr(img, v))
+            pixels += int(v.mask.sum())
+            kept.append((v, img.cpu().numpy()))
     reason = "n/a: held-out real panoramas are scored on their co-visible pixels only (PSNR)"
     return {
         "psnr": float(np.mean(ps)) if ps else covisible_shortfall(views),
@@ -263,7 +271,70 @@ def _evaluate_masked(model, views, cfg, backend) -> dict:
         "protocol": "other panoramas of the space, pixels the training "
         "panorama also sees (true distances agree within 5 %)",
         "covisible_fraction": sum(int(v.mask.sum()) for v in views) / float(sum(v.mask.size for v in views)),
+        **_aligned_scores(kept, lpips_or_reason(cfg.res) if kept else None, covisible_shortfall(views)),
     }
+
+
+HELDOUT_SCORE_MEANING = {
+    "psnr": "raw: the Gaussians' render against the held-out panorama's view, co-visible pixels",
+    "aligned_psnr": "the render after an affine 3x4 colour transform (RGB -> RGB + offset) fitted per view by "
+    "least squares (float64) on the co-visible pixels, render mapped onto the held-out image (Mip-NeRF 360 "
+    "color_correct, affine)",
+    "aligned_ssim": "SSIM of the aligned render over the 11x11 windows wholly inside the co-visible pixels",
+    "aligned_lpips": "LPIPS of the aligned render, only on views whose every pixel is co-visible",
+    "oracle_psnr": "reprojection oracle: the training panorama's colour at each co-visible pixel's true 3D "
+    "point (perfect geometry, the training capture's exposure), raw",
+    "oracle_aligned_psnr": "the reprojection oracle after the same per-view colour alignment",
+}
+
+
+def _aligned_scores(kept: list, net, shortfall: str | None) -> dict:
+    """The aligned and oracle scores of masked held-out views: ``kept`` [(view, render [h, w, 3] float32 in
+    [0, 1])] (the views with MIN_COVISIBLE_PIXELS co-visible pixels), ``net`` the LPIPS network or its n/a
+    reason. Each is the mean over the views where it could be computed, with its view count; 'n/a: <reason>'
+    (the first view's) where none could."""
+    from ..metrics.aligned import apply_color_affine, fit_color_affine, masked_psnr, masked_ssim
+
+    vals = {k: [] for k in ("aligned_psnr", "aligned_ssim", "aligned_lpips", "oracle_psnr", "oracle_aligned_psnr")}
+    why = {}
+    for v, img in kept:
+        m, truth = v.mask, v.rgb.astype(np.float64)
+        results = {}
+        M = fit_color_affine(img[m], truth[m])
+        if isinstance(M, str):
+            results.update(aligned_psnr=M, aligned_ssim=M, aligned_lpips=M)
+        else:
+            aligned = apply_color_affine(img, M)
+            results["aligned_psnr"] = masked_psnr(aligned, truth, m)
+            results["aligned_ssim"] = masked_ssim(aligned, truth, m)
+            if isinstance(net, str):
+                results["aligned_lpips"] = net
+            elif not m.all():
+                results["aligned_lpips"] = (
+                    f"n/a: LPIPS needs every pixel of a view; {int(m.sum())} of {m.size} are co-visible"
+                )
+            else:
+                t32 = lambda a: torch.from_numpy(a.astype(np.float32))  # noqa: E731
+                results["aligned_lpips"] = lpips_distance(net, t32(aligned), t32(truth))
+        if v.oracle is None:
+            results["oracle_psnr"] = results["oracle_aligned_psnr"] = "n/a: the view has no reprojection oracle"
+        else:  # NaN outside the mask: never selected
+            results["oracle_psnr"] = masked_psnr(v.oracle, truth, m)
+            Mo = fit_color_affine(v.oracle[m], truth[m])
+            results["oracle_aligned_psnr"] = (
+                Mo if isinstance(Mo, str) else masked_psnr(apply_color_affine(v.oracle, Mo), truth, m)
+            )
+        for k, r in results.items():
+            if isinstance(r, str):
+                why.setdefault(k, r)
+            else:
+                vals[k].append(r)
+    out = {}
+    for k, xs in vals.items():
+        out[k] = float(np.mean(xs)) if xs else why.get(k, shortfall or "n/a: no held-out view to score")
+        out[f"{k}_views"] = len(xs)
+    out["meaning"] = HELDOUT_SCORE_MEANING
+    return out
 
 
 def best_heldout(history: list[dict], reason: str | None = None) -> dict | str:

@@ -142,3 +142,19 @@ def test_max_points_thins_the_cloud_evenly_and_reports_the_density():
     assert report["thinning"]["spacing_deg"] > 0 and "thinning" in report["seconds"]
     full, rep_full = run_source(scene, "fibonacci", "sim:clean", 6, None)
     assert "thinning" not in rep_full and len(full) > 4 * len(pc)
+
+
+def test_points_report_weights_the_erp_distance_comparison_by_solid_angle():
+    """The fused distance map against the truth: beside the plain AbsRel/RMSE/delta1 (unchanged), their
+    cos-latitude-weighted versions with the same alignment scale."""
+    from panorecon.metrics import depth_metrics, ws_depth_metrics
+
+    scene = load_scene("bedroom", 128)
+    pc, rep = run_source(scene, "fibonacci", "sim:relative", views=12)
+    d, distance = rep["depth"], pc.meta["erp_distance"]
+    plain = depth_metrics(distance, scene.distance, "median", ~scene.sky)
+    assert {k: d[k] for k in ("abs_rel", "rmse", "delta1", "scale")} == {
+        k: plain[k] for k in ("abs_rel", "rmse", "delta1", "scale")
+    }
+    ws = ws_depth_metrics(distance, scene.distance, plain["scale"], ~scene.sky)
+    assert {k: d[k] for k in ws} == ws and 0 < d["ws_abs_rel"] != d["abs_rel"]

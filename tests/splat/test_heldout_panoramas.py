@@ -79,6 +79,31 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     m = train(scene, scene.point_cloud(), TrainConfig(iters=10, labels=6, res=32, heldout=3), tmp_path, progress=False)
     held = m["held-out"]
     assert isinstance(held["psnr"], float) and held["ssim"].startswith("n/a") and 0 < held["covisible_fraction"] < 1
+    # beside the raw number: the colour-aligned render and the reprojection oracle, raw and aligned, labelled
+    for key in ("aligned_psnr", "oracle_psnr", "oracle_aligned_psnr"):
+        assert isinstance(held[key], float) and held[f"{key}_views"] == held["views"] and key in held["meaning"]
+    assert held["oracle_psnr"] <= held["oracle_aligned_psnr"]
+    # 32 px views: 22 x 22 SSIM windows at most, n/a below 256 of them wholly co-visible
+    assert isinstance(held["aligned_ssim"], float) or "SSIM windows" in held["aligned_ssim"]
+    assert held["aligned_lpips"].startswith("n/a: ")  # no view is wholly co-visible, or no weights at 32 px
+    saved = json.loads((tmp_path / "metrics.json").read_text())["held-out"]
+    assert saved["aligned_psnr"] == held["aligned_psnr"] and saved["meaning"]["psnr"].startswith("raw")
+
+    import pandas as pd
+
+    from panorecon.evaluation.ablate import result_row
+    from panorecon.evaluation.report import average_table, markdown_table
+    from panorecon.pipeline import Row
+
+    row = Row(scene.name, 128, "fibonacci", "sim:relative", label="s2d3d")
+    pts = {"report": {"depth": {}, "points": {}, "seconds": {}}, "seconds": 1.0, "peak_rss_mb": 1.0}
+    rec = result_row(row, pts, {"metrics": m, "seconds": 1.0, "peak_rss_mb": 1.0}, {"versions": {}}, False, False)
+    assert rec["psnr_ho"] == held["psnr"] and rec["heldout_aligned_psnr"] == held["aligned_psnr"]
+    assert rec["heldout_oracle_psnr"] == held["oracle_psnr"]
+    assert np.isnan(rec["heldout_aligned_ssim"]) and rec["heldout_aligned_ssim_note"] == held["aligned_ssim"]
+    table = markdown_table(average_table(pd.DataFrame([rec])), "label")
+    assert "held-out PSNR, colour-aligned" in table and "oracle PSNR (ceiling)" in table
+    assert f"{held['aligned_psnr']:.2f}" in table and f"{held['oracle_psnr']:.2f}" in table
 
 
 def test_min_covisible_pixels_is_the_line():
@@ -124,3 +149,5 @@ def test_no_covisible_pixel_reads_na_everywhere(tmp_path):
     pts = {"report": {"depth": {}, "points": {}, "seconds": {}}, "seconds": 1.0, "peak_rss_mb": 1.0}
     rec = result_row(row, pts, {"metrics": m, "seconds": 1.0, "peak_rss_mb": 1.0}, {"versions": {}}, False, False)
     assert np.isnan(rec["psnr_ho"]) and rec["psnr_ho_note"] == na and rec["history_heldout"] is None
+    assert np.isnan(rec["heldout_aligned_psnr"]) and rec["heldout_aligned_psnr_note"] == na
+    assert np.isnan(rec["heldout_oracle_psnr"]) and rec["heldout_oracle_psnr_note"] == na
