@@ -36,7 +36,7 @@ CLAIMS = [
         ],
     ),
     (
-        "The MoGe-2 teacher is best; DPT is far worse",
+        "The MoGe-2 teacher is best; DPT is far worse (sim: stand-ins here)",
         "42.07 vs 41.67 (VGGT), 32.93 (DPT)",
         "table4",
         [("sim:clean", "sim:relative", -1), ("sim:affine-disparity", "sim:relative", -1)],
@@ -123,16 +123,19 @@ def _range(cells: dict) -> str:
     parts = []
     for label, c in cells.items():
         t = c["these"]
-        parts.append(
-            f"{label}: " + ("n/a" if t is None else f"{t['estimate']:+.2f} [{t['low']:+.2f}, {t['high']:+.2f}]")
-        )
+        if t is None:
+            parts.append(f"{label} n/a")
+        elif math.isnan(t["low"]):  # one pair per scene: no interval over seeds
+            parts.append(f"{label} {t['estimate']:+.2f}")
+        else:
+            parts.append(f"{label} {t['estimate']:+.2f} [{t['low']:+.2f}, {t['high']:+.2f}]")
     return "; ".join(parts)
 
 
 def markdown(claims: list[dict]) -> str:
     lines = [
         "| claim (paper §3) | paper | Δ pseudo-label PSNR, these scenes (dB, 95 %) | verdict (these / new scenes) "
-        "| held-out (these / new) | scenes × seeds |",
+        "| held-out (these / new) | paired runs |",
         "|---|---|---|---|---|---|",
     ]
     for c in claims:
@@ -142,7 +145,7 @@ def markdown(claims: list[dict]) -> str:
         lines.append(
             f"| {c['claim']} | {c['paper']} | {_range(c['pseudo_label'])} | **{c['verdict_pseudo_label_these']}** / "
             f"{c['verdict_pseudo_label_new']} | {c['verdict_heldout_these']} / {c['verdict_heldout_new']} | "
-            f"{c['scenes']} × {c['seeds']} |"
+            f"{min((x['pairs'] for x in c['pseudo_label'].values()), default=0)} |"
         )
     lines += ["", "Not run here: " + "; ".join(NOT_HERE.values()) + "."]
     return "\n".join(lines)

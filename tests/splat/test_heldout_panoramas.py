@@ -85,7 +85,11 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     assert held["oracle_psnr"] <= held["oracle_aligned_psnr"]
     # 32 px views: 22 x 22 SSIM windows at most, n/a below 256 of them wholly co-visible
     assert isinstance(held["aligned_ssim"], float) or "SSIM windows" in held["aligned_ssim"]
-    assert held["aligned_lpips"].startswith("n/a: ")  # no view is wholly co-visible, or no weights at 32 px
+    # LPIPS only over the views whose every pixel is co-visible (n/a when none is)
+    if isinstance(held["aligned_lpips"], float):
+        assert 0 <= held["aligned_lpips"] <= 1 and 1 <= held["aligned_lpips_views"] <= held["views"]
+    else:
+        assert held["aligned_lpips"].startswith("n/a: ") and held["aligned_lpips_views"] == 0
     saved = json.loads((tmp_path / "metrics.json").read_text())["held-out"]
     assert saved["aligned_psnr"] == held["aligned_psnr"] and saved["meaning"]["psnr"].startswith("raw")
 
@@ -100,7 +104,11 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     rec = result_row(row, pts, {"metrics": m, "seconds": 1.0, "peak_rss_mb": 1.0}, {"versions": {}}, False, False)
     assert rec["psnr_ho"] == held["psnr"] and rec["heldout_aligned_psnr"] == held["aligned_psnr"]
     assert rec["heldout_oracle_psnr"] == held["oracle_psnr"]
-    assert np.isnan(rec["heldout_aligned_ssim"]) and rec["heldout_aligned_ssim_note"] == held["aligned_ssim"]
+    for key in ("aligned_ssim", "aligned_lpips"):  # a number, or NaN with the reason in its note column
+        if isinstance(held[key], float):
+            assert rec[f"heldout_{key}"] == held[key]
+        else:
+            assert np.isnan(rec[f"heldout_{key}"]) and rec[f"heldout_{key}_note"] == held[key]
     table = markdown_table(average_table(pd.DataFrame([rec])), "label")
     assert "held-out PSNR, colour-aligned" in table and "oracle PSNR (ceiling)" in table
     assert f"{held['aligned_psnr']:.2f}" in table and f"{held['oracle_psnr']:.2f}" in table
