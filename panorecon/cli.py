@@ -377,7 +377,7 @@ def cmd_train(args) -> int:
     from .device import resolve_device
     from .pipeline import teacher_depth_fn
     from .scenes import scene_from_args
-    from .sources import cloud_scale
+    from .sources import check_source, cloud_scale
     from .splat.trainer import TrainConfig, train
 
     device = resolve_device(getattr(args, "device", "auto"))
@@ -388,6 +388,7 @@ def cmd_train(args) -> int:
         args = argparse.Namespace(**{**vars(args), "views": TRAIN_VIEWS.get(args.source)})
     _check_source(args)
     scene = scene_from_args(args)
+    check_source(scene, args.source, args.teacher)  # what the source needs of this scene: before the claim
     out = Path(args.out)
     _claim(
         args,
