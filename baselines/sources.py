@@ -1,6 +1,7 @@
 """The multi-view baselines as point sources: fn(scene, teacher, views, fusion_config, view_size) ->
 (PointCloud, stage seconds, info). They need no teacher (``fn.uses_teacher`` is False) and a synthetic
-scene: K panoramas are rendered from positions around the panorama centre (``render_positions``).
+scene (``fn.check``, before any work): K panoramas are rendered from positions around the panorama centre
+(``render_positions``).
 
 ``views`` is the number of 90-degree views each panorama is split into (default 8); ``view_size`` their
 side in pixels (default: ERP width / 4, which keeps the panorama's resolution). The info dict holds
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 import time
 
-from panorecon.scenes.multiview import render_positions
+from panorecon.scenes.multiview import render_positions, require_world
 from panorecon.sources.builtin import default_view_size
 
 from .colmap_mvs import require_cuda, run_colmap_mvs
@@ -81,5 +82,11 @@ def colmap_mvs(
     return cloud, seconds, _info(n, size, layout, panoramas, report)
 
 
-for _fn in (colmap_sfm, colmap_mvs):
+def _check_mvs(scene) -> None:
+    require_cuda()
+    require_world(scene)
+
+
+for _fn, _check in ((colmap_sfm, require_world), (colmap_mvs, _check_mvs)):
     _fn.uses_teacher = False
+    _fn.check = _check  # before any work: `train` claims its --out folder only after this

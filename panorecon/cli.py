@@ -289,9 +289,12 @@ def cmd_sources_list(args) -> int:
 
 
 def _initial_cloud(args, scene, cloud_path, report_path):
-    """Run the point source, write its cloud (and report) and print one summary line -> (PointCloud, report)."""
+    """Run the point source, write its cloud (and report, and --distance-out) and print one summary line ->
+    (PointCloud, report). The outputs are written together (``atomic_write_all``): an error or a Ctrl-C/SIGTERM
+    before they are all written leaves none of them (files already at those paths are kept), one during the
+    final renames leaves all of them whole."""
     from .device import resolve_device
-    from .io import save_npy, write_json
+    from .io import atomic_write_all, json_text
     from .pipeline.stages import fusion_config_for
     from .sources import run_source
 
@@ -305,15 +308,18 @@ def _initial_cloud(args, scene, cloud_path, report_path):
         view_size=getattr(args, "view_size", None),
         max_points=getattr(args, "max_points", None),
     )
-    pc.save_ply(cloud_path)
-    if getattr(args, "distance_out", None):
-        if pc.meta.get("erp_distance") is None:
-            raise PanoreconInputError(
-                f"--distance-out {args.distance_out}: source {args.source!r} gives no ERP distance"
-            )
-        save_npy(args.distance_out, pc.meta["erp_distance"])
-    if report_path:
-        write_json(report_path, report)
+    distance_out = getattr(args, "distance_out", None)
+    if distance_out and pc.meta.get("erp_distance") is None:
+        raise PanoreconInputError(f"--distance-out {distance_out}: source {args.source!r} gives no ERP distance")
+    outputs = [p for p in (cloud_path, distance_out, report_path) if p]
+    with atomic_write_all(outputs) as tmps:
+        written = dict(zip(outputs, tmps))
+        pc.save_ply(written[cloud_path])
+        if distance_out:
+            with open(written[distance_out], "wb") as f:  # a file object: np.save adds no ".npy" to the name
+                np.save(f, pc.meta["erp_distance"])
+        if report_path:
+            written[report_path].write_text(json_text(report))
     depth = report.get("depth")
     d = (
         f"AbsRel {depth['abs_rel']:.4f}, delta1 {depth['delta1']:.3f}"
@@ -374,7 +380,7 @@ def cmd_train(args) -> int:
     from .device import resolve_device
     from .pipeline import teacher_depth_fn
     from .scenes import scene_from_args
-    from .sources import cloud_scale
+    from .sources import check_source, cloud_scale
     from .splat.trainer import TrainConfig, train
 
     device = resolve_device(getattr(args, "device", "auto"))
@@ -385,6 +391,7 @@ def cmd_train(args) -> int:
         args = argparse.Namespace(**{**vars(args), "views": TRAIN_VIEWS.get(args.source)})
     _check_source(args)
     scene = scene_from_args(args)
+    check_source(scene, args.source, args.teacher)  # what the source needs of this scene: before the claim
     out = Path(args.out)
     _claim(
         args,
@@ -887,7 +894,11 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
     interrupts.install()
     try:
-        return args.fn(args)
+        try:
+            return args.fn(args)
+        finally:  # inside the try below: a signal while the handlers are put back is one line too
+            _restore(old)
+            interrupts.end_at_exit()
     except KeyboardInterrupt as e:
         e = e if isinstance(e, interrupts.Interrupted) else interrupts.Interrupted(signal.SIGINT)
         print(e.line(), file=sys.stderr)
@@ -901,8 +912,6 @@ def main(argv: list[str] | None = None) -> int:
         where = " -> ".join(str(f) for f in (e.filename, e.filename2) if f is not None)
         print(f"panorecon: error: {where + ': ' if where else ''}{e.strerror or e}", file=sys.stderr)
         return 2
-    finally:
-        _restore(old)
 
 
 def _restore(handlers: dict) -> None:

@@ -5,11 +5,19 @@
 Inside ``at_step_boundaries`` (the trainer's step loop) a signal only sets a flag: at the next step boundary
 the loop writes its checkpoint and raises ``Interrupted`` with the step and the checkpoint's path. main
 prints ``Interrupted.line()`` and exits 128 + the signal number (130 for SIGINT, 143 for SIGTERM).
+Inside ``held`` (creating a temp file; renaming a command's finished outputs into place) a signal waits for
+the block's end. Once a
+command has returned, ``end_at_exit`` makes a signal during the interpreter's exit (atexit callbacks such as
+torch's library finalizers) end the process at once with one line instead of an ignored-exception traceback.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
+import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterable, Iterator
 
@@ -83,3 +91,50 @@ def at_step_boundaries(steps: Iterable[int], total: int, checkpoint: Callable[[i
         _pending.clear()
         for s, h in old.items():
             signal.signal(s, h)
+
+
+@contextlib.contextmanager
+def held() -> Iterator[None]:
+    """Run a short block that must not stop halfway (creating a temp file and noting its name; renaming finished
+    outputs into place) with SIGINT and SIGTERM only recorded; when the block has ended the previous handlers
+    come back and the first signal received is raised again (``signal.raise_signal``), so they act on it as if
+    it had just arrived. Main thread only, with Python-set handlers; elsewhere nothing changes."""
+    old = {s: signal.getsignal(s) for s in SIGNALS} if _main_thread() else {}
+    if not old or None in old.values():  # None: a handler set outside Python, which could not be put back
+        yield
+        return
+    received: list[int] = []
+    for s in SIGNALS:
+        signal.signal(s, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        if received:
+            signal.raise_signal(received[0])
+
+
+def _end_now(signum, frame):
+    """A signal while the interpreter exits: the command had finished, so say so and end now (os._exit skips the
+    remaining atexit callbacks, one of which may be what hangs)."""
+    name = signal.Signals(signum).name
+    sys.stdout.flush()
+    print(f"panorecon: {name} while exiting, after the command had finished; its outputs are whole", file=sys.stderr)
+    sys.stderr.flush()
+    os._exit(128 + int(signum))
+
+
+def _install_end_now() -> None:
+    if _main_thread():
+        for s in SIGNALS:
+            signal.signal(s, _end_now)
+
+
+def end_at_exit() -> None:
+    """From the interpreter's exit on, SIGINT/SIGTERM end the process at once with one line and 128 + the signal
+    number. Registered (again) after each command, so it runs before the atexit callbacks registered earlier
+    (atexit runs the last registered first; weakref.finalize's, which runs torch's library finalizers, is
+    registered when torch is first imported)."""
+    atexit.unregister(_install_end_now)
+    atexit.register(_install_end_now)

@@ -22,6 +22,8 @@ from .cli_types import finite_vector, float_in, in_path, int_in, out_file
 from .geometry import PointCloud
 from .io import PanoreconInputError, atomic_write
 
+MIN_POINTS = 10  # fewer points fit no surface
+
 
 def oriented_normals(xyz: np.ndarray, centre=(0.0, 0.0, 0.0), knn: int = 16) -> np.ndarray:
     """Unit normals [N, 3] float64 from a k-NN plane fit, each flipped to face ``centre`` (metres)."""
@@ -42,8 +44,8 @@ def poisson_mesh(pc: PointCloud, depth: int = 9, trim: float = 0.1, centre=(0.0,
         import pymeshlab
     except ImportError:
         raise PanoreconInputError("`panorecon mesh` needs pymeshlab: pip install 'panorecon[mesh]'") from None
-    if len(pc) < 10:
-        raise PanoreconInputError(f"the point cloud has {len(pc)} points: a surface needs at least 10")
+    if len(pc) < MIN_POINTS:
+        raise PanoreconInputError(f"the point cloud has {len(pc)} points: a surface needs at least {MIN_POINTS}")
     if not 0 <= trim < 1:
         raise PanoreconInputError(f"--trim {trim}: expected a density quantile in [0, 1)")
     xyz = pc.xyz.astype(np.float64)
@@ -118,6 +120,8 @@ def cmd_mesh(args) -> int:
         pc = PointCloud.load_ply(cloud)
     except (FileNotFoundError, ValueError) as e:
         raise PanoreconInputError(str(e)) from None
+    if len(pc) < MIN_POINTS:
+        raise PanoreconInputError(f"{cloud}: {len(pc)} points; a surface needs at least {MIN_POINTS}")
     centre = args.centre
     report = _report_of(cloud)
     name = args.scene or report.get("scene")

@@ -198,7 +198,28 @@ def cases():
     return out
 
 
-CASES = cases()
+def _with(cmd, drop=(), **opts):
+    """BASE's row for cmd with options replaced (``--a_b`` written ``a_b``) and ``drop`` removed."""
+    pos, base = BASE[cmd]
+    o = {k: v for k, v in base.items() if k not in drop}
+    o.update({f"--{k.replace('_', '-')}": v for k, v in opts.items()})
+    return cmd, list(pos), o
+
+
+# mistakes only the command body can see (what a source needs of the scene, a file's content): hand-written rows
+BODY_CASES = [
+    ("train: --source colmap-sfm on a real panorama", *_with(("train",), source="colmap-sfm"), None, "no world"),
+    (
+        "train: --teacher sim: on an image without --depth",
+        *_with(("train",), drop=("--depth",), teacher="sim:relative"),
+        None,
+        "no true depth",
+    ),
+    ("train: --source fibonacci without --teacher", *_with(("train",), drop=("--teacher",)), None, "needs --teacher"),
+    ("generate: --lora missing", *_with(("generate",), lora=f"{W}/no-lora.safetensors"), None, "no-lora"),
+    ("mesh: a one-point cloud", ("mesh",), [f"{W}/one.ply"], BASE[("mesh",)][1], r"one\.ply: 1 points"),
+]
+CASES = cases() + BODY_CASES
 
 
 @pytest.fixture(scope="module")
@@ -220,6 +241,7 @@ def workspace(tmp_path_factory):
     PointCloud(rng.normal(size=(200, 3)).astype(np.float32), rng.random((200, 3)).astype(np.float32)).save_ply(
         w / "cloud.ply"
     )
+    PointCloud(np.zeros((1, 3), np.float32), np.zeros((1, 3), np.float32)).save_ply(w / "one.ply")
     (w / "suite.toml").write_text('title = "t"\nrows = ["source"]\n[grid]\nscene = ["bedroom"]\nsource = ["random"]\n')
     (w / "baseline.json").write_text("{}")
     (w / "r.csv").write_text("scene,seed,label\nbedroom,0,random\n")
@@ -348,3 +370,21 @@ def test_unit_warning_names_the_unit_and_the_scale(workspace, tmp_path, capsys, 
         )
     text = caplog.text
     assert "millimetres" in text and "--depth-scale 0.001" in text
+
+
+def test_a_room_in_centimetres_read_as_metres_names_the_unit(workspace, tmp_path, caplog):
+    np.save(tmp_path / "cm.npy", np.load(workspace / "d.npy") * 100)  # a 2-3 m room, median 250 "m"
+    with caplog.at_level("WARNING"):
+        out = str(tmp_path / "r")
+        assert main(["render", str(workspace / "pano.png"), "--depth", str(tmp_path / "cm.npy"), "--out", out]) == 0
+    assert "cm.npy" in caplog.text and "looks like centimetres: pass --depth-scale 0.01" in caplog.text
+
+
+def test_a_file_teacher_of_another_size_is_resampled_with_one_line(workspace, tmp_path, caplog):
+    np.save(tmp_path / "half.npy", np.load(workspace / "t.npy")[::2, ::2])  # 64x32 for a 128x64 scene
+    argv = ["points", str(workspace / "pano.png"), "--depth", str(workspace / "d.npy"), "--source", "fibonacci"]
+    argv += ["--teacher", f"file:{tmp_path / 'half.npy'}", "--views", "6", "--out", str(tmp_path / "p.ply")]
+    with caplog.at_level("WARNING"):
+        assert main(argv) == 0
+    said = [r.getMessage() for r in caplog.records if "half.npy" in r.getMessage()]
+    assert len(said) == 1 and "64x32 and the scene 128x64" in said[0] and "nearest neighbour" in said[0], said

@@ -3,7 +3,9 @@
 from .files import (
     PanoreconInputError,
     atomic_write,
+    atomic_write_all,
     file_sha256,
+    json_text,
     quiet_native_stderr,
     read_image,
     save_npy,
@@ -14,7 +16,9 @@ from .process import peak_rss_mb
 
 __all__ = [
     "atomic_write",
+    "atomic_write_all",
     "file_sha256",
+    "json_text",
     "quiet_native_stderr",
     "read_image",
     "write_image",

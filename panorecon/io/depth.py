@@ -4,7 +4,8 @@ A depth file stores ``value * scale`` metres (``scale``: metres per stored unit;
 0.001 for 16-bit PNG). Integer depth is a scaled unit: panorecon assumes millimetres for a 16-bit PNG (the
 convention of Structured3D); Stanford2D3D stores 1/512 m (``--depth-scale 0.001953125``), Matterport3D 1/4000 m
 (``--depth-scale 0.00025``). A map whose median distance is outside ``PLAUSIBLE_MEDIAN_M`` for a metric scene
-gets a warning naming the likely unit and the ``--depth-scale`` that fixes it (``unit_warning``). Complex,
+(for a closed scene, a room, above ``CLOSED_MAX_MEDIAN_M``) gets a warning naming the likely unit and the
+``--depth-scale`` that fixes it (``unit_warning``). Complex,
 boolean and object arrays are refused. Invalid values become NaN: 0, 65535 in a 16-bit PNG (the usual "missing" code),
 anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is:
 
@@ -33,6 +34,12 @@ PNG_MISSING = 65535
 _EXR_CHANNELS = ("Z", "Y", "R", "depth", "distance")
 # a metric scene's median ray distance (metres): rooms are ~1-10 m, landscapes up to a few hundred
 PLAUSIBLE_MEDIAN_M = (0.2, 1000.0)
+# a closed scene (valid depth over CLOSED_MIN_FRACTION of the pixels above CLOSED_LATITUDE_DEG: a ceiling, no sky)
+# is a room or a hall, whose median ray distance stays below CLOSED_MAX_MEDIAN_M; a room stored in centimetres
+# and read as metres has a median of 100-1000 "m", which the open-scene window above would let pass
+CLOSED_LATITUDE_DEG = 60.0
+CLOSED_MIN_FRACTION = 0.9
+CLOSED_MAX_MEDIAN_M = 50.0
 # the field's stored units (metres per unit), tried in this order when a median is implausible
 UNIT_CONVENTIONS = (
     ("millimetres (Structured3D)", 1e-3),
@@ -52,28 +59,49 @@ def check_depth_dtype(array: np.ndarray, what: str) -> None:
         )
 
 
+def is_closed(distance_m: np.ndarray) -> bool:
+    """Whether an ERP depth [H, W] sees a ceiling: finite positive depth over ``CLOSED_MIN_FRACTION`` of the
+    pixels above ``CLOSED_LATITUDE_DEG`` (sky, and a pole left without data, are not finite). False for
+    anything that is not a 2-D map."""
+    d = np.asarray(distance_m)
+    if d.ndim != 2 or d.shape[0] < 2:
+        return False
+    lat = 90.0 - (np.arange(d.shape[0]) + 0.5) * 180.0 / d.shape[0]  # row centres, degrees
+    top = d[lat > CLOSED_LATITUDE_DEG]
+    return top.size > 0 and float(np.mean(np.isfinite(top) & (top > 0))) >= CLOSED_MIN_FRACTION
+
+
 def unit_warning(distance_m: np.ndarray, scale: float, what: str) -> str | None:
     """A warning when the median finite positive distance (metres, after ``scale`` metres per stored unit) is
-    implausible for a metric scene, naming the stored unit it looks like and the --depth-scale that fixes it;
-    None when plausible or empty."""
+    implausible, naming the stored unit it looks like and the --depth-scale that fixes it; None when plausible
+    or empty. The window is ``PLAUSIBLE_MEDIAN_M``, with its top lowered to ``CLOSED_MAX_MEDIAN_M`` for a closed
+    scene (``is_closed``: a room, where centimetres read as metres give a 100-1000 m median). Of the
+    ``UNIT_CONVENTIONS`` that make the median plausible, the one nearest (in log) to the window's geometric
+    centre is named first."""
     d = np.asarray(distance_m, np.float64)
+    closed = is_closed(d)
     d = d[np.isfinite(d) & (d > 0)]
     if d.size == 0:
         return None
     median = float(np.median(d))
     lo, hi = PLAUSIBLE_MEDIAN_M
+    scene = "a metric scene"
+    if closed:
+        hi, scene = CLOSED_MAX_MEDIAN_M, "a closed scene (depth all round overhead: a ceiling, so a room or hall)"
     if lo <= median <= hi:
         return None
     stored = median / scale
     fits = [(name, s) for name, s in UNIT_CONVENTIONS if lo <= stored * s <= hi and not np.isclose(s, scale)]
-    hint = (
-        "; ".join(f"as {name}: --depth-scale {s:g} (median {stored * s:.3g} m)" for name, s in fits)
-        if fits
-        else "no usual unit makes it plausible (a relative, unitless depth is not a true depth)"
-    )
+    fits.sort(key=lambda u: abs(np.log(stored * u[1] / np.sqrt(lo * hi))))
+    if fits:
+        (name, s), others = fits[0], fits[1:]
+        hint = f"it looks like {name}: pass --depth-scale {s:g} (median {stored * s:.3g} m)"
+        hint += "".join(f"; or {n}: --depth-scale {u:g} (median {stored * u:.3g} m)" for n, u in others)
+    else:
+        hint = "no usual unit makes it plausible (a relative, unitless depth is not a true depth)"
     return (
-        f"{what}: median ray distance {median:.4g} m (stored values x {scale:g} m) is implausible for a metric "
-        f"scene (expected {lo:g} to {hi:g} m); {hint}"
+        f"{what}: median ray distance {median:.4g} m (stored values x {scale:g} m) is implausible for {scene} "
+        f"(expected {lo:g} to {hi:g} m); {hint}"
     )
 
 

@@ -21,19 +21,41 @@ class PanoreconInputError(ValueError):
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, suffix: str | None = None):
     """Yield a temporary path beside ``path``; on success rename it over ``path``, else delete it."""
+    from ..interrupts import held
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
+    tmp = None
     try:
-        os.fchmod(fd, 0o666 & ~current_umask())  # mkstemp makes 0600; outputs get the user's normal mode
-    finally:
-        os.close(fd)
-    try:
+        with held():  # a Ctrl-C between creating the temp file and noting its name would leave it behind
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
+            try:
+                os.fchmod(fd, 0o666 & ~current_umask())  # mkstemp makes 0600; outputs get the user's normal mode
+            finally:
+                os.close(fd)
         yield Path(tmp)
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
         raise
+
+
+@contextlib.contextmanager
+def atomic_write_all(paths: list[str | os.PathLike]):
+    """Several outputs of one command, written together: yield a temp path beside each of ``paths`` (as
+    ``atomic_write``, each keeping its suffix); when the block ends normally they are renamed into place with
+    SIGINT/SIGTERM held until the last rename (``interrupts.held``), else all are deleted. So an error or an
+    interrupt before the renames leaves none of the outputs and the files already at those paths untouched; a
+    signal during the renames acts after them, with every output whole."""
+    from ..interrupts import held
+
+    with contextlib.ExitStack() as temps:
+        with held():  # each temp file is on the stack before a signal can stop this
+            tmps = [temps.enter_context(atomic_write(p)) for p in paths]
+        yield tmps
+        with held():
+            temps.close()
 
 
 def file_sha256(path: str | os.PathLike) -> str:
@@ -170,10 +192,15 @@ def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
         np.save(tmp, array)
 
 
+def json_text(obj) -> str:
+    """Pretty JSON text with a final newline; NaN/Inf are refused (they are not JSON)."""
+    return json.dumps(obj, indent=2, allow_nan=False, default=_json_default) + "\n"
+
+
 def write_json(path: str | os.PathLike, obj) -> None:
-    """Pretty JSON, atomically; NaN/Inf are refused (they are not JSON)."""
+    """``json_text(obj)``, atomically."""
     with atomic_write(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2, allow_nan=False, default=_json_default) + "\n")
+        tmp.write_text(json_text(obj))
 
 
 def _json_default(o):

@@ -29,6 +29,14 @@ def panorama_positions(radius: float, k: int, layout: str = "ring", seed: int = 
     raise PanoreconInputError(f"layout {layout!r}: expected one of {', '.join(POSITION_LAYOUTS)}")
 
 
+def require_world(scene: Scene) -> None:
+    """PanoreconInputError ('n/a: ...') unless the scene has a world to render panoramas at new positions."""
+    if scene.world is None:
+        raise PanoreconInputError(
+            f"n/a: scene {scene.name!r} has no world to render new positions from (synthetic scenes only)"
+        )
+
+
 def render_positions(
     scene: Scene, k: int, layout: str = "ring", radius_fraction: float = 0.3, seed: int = 0
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -38,10 +46,7 @@ def render_positions(
     centre (see ``panorama_positions``). Returns a list of (position [3] float64 metres, rgb [H, W, 3]
     uint8, ray distance [H, W] float32 metres with inf for sky).
     """
-    if scene.world is None:
-        raise PanoreconInputError(
-            f"n/a: scene {scene.name!r} has no world to render new positions from (synthetic scenes only)"
-        )
+    require_world(scene)
     if not 0.0 <= radius_fraction <= 1.0:
         raise PanoreconInputError(f"radius_fraction={radius_fraction}: expected a value in [0, 1]")
     radius = radius_fraction * scene.world.free_space_radius()

@@ -3,9 +3,11 @@
 In-tree sources register with ``@register_source(name, description)``; third-party packages add theirs
 through the ``panorecon.sources`` entry-point group (the entry point loads a callable of the same
 signature, registered under the entry point's name; a ``uses_teacher = False`` attribute on it says it needs
-no depth teacher; the first line of its docstring is its description). The peer methods in the top-level
-``baselines`` package come in that way too. A plug-in that fails to import is still listed; running it raises
-a PanoreconInputError naming the entry point and the import error, so one broken plug-in breaks no other.
+no depth teacher, a ``check`` attribute, ``check(scene)``, raises PanoreconInputError when it cannot run on that
+scene (called before any work or output); the first line of its docstring is its description). The peer
+methods in the top-level ``baselines`` package come in that way too. A plug-in that fails to import is still
+listed; running it raises a PanoreconInputError naming the entry point and the import error, so one broken
+plug-in breaks no other.
 """
 
 from __future__ import annotations
@@ -19,12 +21,14 @@ from ..io import PanoreconInputError
 
 @dataclass(frozen=True)
 class SourceSpec:
-    """fn(scene, teacher, views, fusion_config, view_size) -> (PointCloud, stage_seconds dict, info dict)."""
+    """fn(scene, teacher, views, fusion_config, view_size) -> (PointCloud, stage_seconds dict, info dict);
+    check(scene) raises PanoreconInputError when the source cannot run on the scene (None: it always can)."""
 
     name: str
     description: str
     fn: Callable
     uses_teacher: bool = True
+    check: Callable | None = None
 
 
 _SOURCES: dict[str, SourceSpec] = {}
@@ -55,7 +59,7 @@ def _load_entry_points() -> None:
             _SOURCES[ep.name] = SourceSpec(ep.name, f"(plug-in {ep.value} failed to load: {e})", _broken(ep, e), False)
             continue
         doc = (fn.__doc__ or "").strip().split("\n")[0] or f"plug-in from {ep.value}"
-        _SOURCES[ep.name] = SourceSpec(ep.name, doc, fn, getattr(fn, "uses_teacher", True))
+        _SOURCES[ep.name] = SourceSpec(ep.name, doc, fn, getattr(fn, "uses_teacher", True), getattr(fn, "check", None))
 
 
 def _broken(ep, error: Exception) -> Callable:

@@ -12,7 +12,7 @@ from ..geometry import back_project_erp, thin_on_sphere
 from ..io import PanoreconInputError, peak_rss_mb
 from ..metrics import depth_metrics, edge_depth_metrics, point_metrics, ws_depth_metrics
 from ..teachers import get_teacher, seeded_teacher
-from ..teachers.base import true_view_distance
+from ..teachers.base import require_truth, true_view_distance
 from .registry import get_source
 
 # metrics on fewer valid pixels / points than these read "n/a: <reason>": a handful of samples measures nothing
@@ -94,6 +94,20 @@ def uses_seed(source_name: str, teacher_spec: str | None) -> bool:
     return _takes_seed(spec.fn) or (spec.uses_teacher and seeded_teacher(teacher_spec))
 
 
+def check_source(scene, source_name: str, teacher_spec: str | None) -> None:
+    """What is known to fail before any work: an unknown source, a missing teacher where the source needs one, a
+    simulated teacher on a scene without truth (``require_truth``), and the source's own ``check(scene)`` (e.g.
+    the multi-view baselines need a synthetic scene). Raises PanoreconInputError; ``run_source`` calls it first,
+    and a command calls it before it claims or writes anything."""
+    spec = get_source(source_name)
+    if spec.uses_teacher and not teacher_spec:
+        raise PanoreconInputError(f"source {source_name!r} needs --teacher (see `panorecon teachers list`)")
+    if spec.uses_teacher and teacher_spec.partition(":")[0] == "sim":
+        require_truth(scene)
+    if spec.check is not None:
+        spec.check(scene)
+
+
 def run_source(
     scene,
     source_name: str,
@@ -115,9 +129,8 @@ def run_source(
     over the sphere to at most that many points (``thin_on_sphere``; ``report["thinning"]`` gives the density)
     before it is measured. The report's ``depth_edges`` is the fused map's AbsRel near true depth discontinuities."""
     t_total = time.perf_counter()
+    check_source(scene, source_name, teacher_spec)
     spec = get_source(source_name)
-    if spec.uses_teacher and not teacher_spec:
-        raise PanoreconInputError(f"source {source_name!r} needs --teacher (see `panorecon teachers list`)")
     teacher = get_teacher(teacher_spec, seed) if spec.uses_teacher else None
     extra = {"seed": seed} if _takes_seed(spec.fn) else {}
     pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size, **extra)

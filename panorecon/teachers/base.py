@@ -52,10 +52,7 @@ def true_view_distance(scene, camera: PinholeCamera) -> tuple[np.ndarray, np.nda
         r = world.render_view(camera)
         return r.distance, r.sky
     if scene.distance is None or scene.distance_kind != "truth":
-        raise PanoreconInputError(
-            f"scene {scene.name!r} has no true depth (its depth is {scene.distance_kind!r}); "
-            "simulated teachers need a synthetic scene or a real one with --depth"
-        )
+        raise _no_truth(scene)
     from ..geometry import sample_erp
 
     d = sample_erp(scene.distance, camera.world_rays(), "nearest")
@@ -87,3 +84,17 @@ def batches_by_size(images: Sequence[np.ndarray], batch: int) -> list[list[int]]
 def view_fov_deg(camera: PinholeCamera) -> float:
     """Horizontal field of view of a view, degrees."""
     return math.degrees(2 * math.atan(camera.width / (2 * camera.K[0, 0])))
+
+
+def _no_truth(scene) -> PanoreconInputError:
+    return PanoreconInputError(
+        f"scene {scene.name!r} has no true depth (its depth is {scene.distance_kind!r}); "
+        "simulated teachers need a synthetic scene or a real one with --depth"
+    )
+
+
+def require_truth(scene) -> None:
+    """PanoreconInputError unless a simulated teacher can see the scene's truth: a world to render (synthetic)
+    or a true ERP distance (a real panorama with --depth). Checked before any work (``sources.check_source``)."""
+    if scene.world is None and (scene.distance is None or scene.distance_kind != "truth"):
+        raise _no_truth(scene)

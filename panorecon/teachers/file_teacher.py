@@ -4,10 +4,13 @@ A 16-bit PNG holds distance in units of ``scale`` metres (HoHoNet's ``*.pred_dep
 0 = unknown); a ``.npy`` holds float metres (scale multiplies it). The map must be 2:1. Views sample it
 with nearest-neighbour lookups along their rays.
 
-Size rule: a map of another width than the scene's ERP is resampled to it by nearest neighbour when it is at
-least half as wide (``MAX_UPSAMPLE`` = 2); a narrower map is refused, as a few depth pixels stretched over a
-panorama are no teacher. With ``metric=1`` a median distance implausible for a metric scene gets the same
-unit warning as a true depth (``io.depth.unit_warning``).
+Size rule: a map of another width than the scene's ERP (both are 2:1, so the pixels cover the same angles) is
+resampled to it by nearest neighbour when it is at least half as wide (``MAX_UPSAMPLE`` = 2), with one line
+saying so; a narrower map is refused, as a few depth pixels stretched over a panorama are no teacher. This is
+what the field's precomputed maps need: a network predicts at its own input size (HoHoNet's
+``*.pred_depth_mm.png`` is 1024x512), often below the panorama's, and nearest neighbour keeps each depth a value
+the network gave (no blend of a foreground and a background depth at an edge). With ``metric=1`` a median
+distance implausible for a metric scene gets the same unit warning as a true depth (``io.depth.unit_warning``).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ class FileTeacher:
         self.path = Path(path)
         self.name = f"file:{spec}"
         self._distance = self._load()
+        self._resample_said: set[tuple[int, int]] = set()
 
     def _load(self) -> np.ndarray:
         if self.path.suffix.lower() == ".npy":
@@ -81,6 +85,18 @@ class FileTeacher:
                 f"teacher file:{self.path}: the depth map is {w}x{w // 2} but the scene is {scene.width}x"
                 f"{scene.height}; a map narrower than 1/{MAX_UPSAMPLE} of the scene's width is refused (give "
                 f"a map at least {-(-scene.width // MAX_UPSAMPLE)} px wide, or a smaller --width)"
+            )
+        size = (scene.width, scene.height)
+        if w != scene.width and size not in self._resample_said:
+            self._resample_said.add(size)
+            log.warning(
+                "note: teacher file:%s: the depth map is %dx%d and the scene %dx%d: sampled at the scene's size by "
+                "nearest neighbour (a 2:1 map at least 1/%d of the scene's width is; a narrower one is refused)",
+                self.path,
+                w,
+                w // 2,
+                *size,
+                MAX_UPSAMPLE,
             )
 
     def _for(self, scene) -> np.ndarray:

@@ -108,7 +108,10 @@ class HFTeacher:
             config = AutoConfig.from_pretrained(source, local_files_only=True)
         except (OSError, ValueError):
             raise _not_found(source) from None
-        self.output = output_kind(config)
+        try:
+            self.output = output_kind(config)
+        except PanoreconInputError as e:
+            raise PanoreconInputError(f"teacher hf:{source}: {e}") from None
         if config.model_type in _NEEDS_TORCHVISION and importlib.util.find_spec("torchvision") is None:
             raise PanoreconInputError(
                 f"teacher hf:{source}: transformers' {config.model_type} image processor needs "

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+from ..io import PanoreconInputError
 from .presets import PRESETS
 
 
@@ -54,6 +56,8 @@ def run_generate(args: argparse.Namespace) -> int:
         seam_block=not args.no_seam_block,
     )
     cfg.check()
+    if args.lora is not None and not Path(args.lora).exists():  # before the model is loaded (minutes)
+        raise PanoreconInputError(f"--lora {args.lora}: no such file or folder (expected LoRA weights)")
     gen = PanoramaGenerator.from_pretrained(args.model, args.lora)
     img = gen.generate(args.preset or args.prompt, cfg, progress=True)
     write_image(args.out, img)

@@ -352,3 +352,13 @@ def test_erp_direct_keeps_the_kind_and_drops_metric_without_a_focal(models):
     assert not teacher.predict_erp(scene).metric
     rel = get_teacher(f"hf:{models['da-relative']}").predict_erp(scene)
     assert rel.kind == "disparity" and rel.affine and not (rel.valid & scene.sky).any()
+
+
+def test_a_folder_of_a_non_depth_model_is_one_line_naming_it(tmp_path):
+    from transformers import SegformerConfig
+
+    SegformerConfig().save_pretrained(tmp_path / "seg")  # config.json is what decides
+    with pytest.raises(PanoreconInputError) as e:
+        get_teacher(f"hf:{tmp_path / 'seg'}")
+    msg = str(e.value)
+    assert "\n" not in msg and f"hf:{tmp_path / 'seg'}" in msg and "'segformer'" in msg
