@@ -8,7 +8,7 @@
     python eval/compositor_builds.py --run OUT --views 8 --no-contrib     # a trained model's own label views
     python eval/compositor_builds.py --run OUT --views 8 --threads 2         # as training runs it, wall ms
 
-Scene: ``bench_rasterizer.scene`` (one 60° camera), ``--size`` and ``--gaussians`` (default 256², 100k); or with
+Scene: ``bench.rasterizer.scene`` (one 60° camera), ``--size`` and ``--gaussians`` (default 256², 100k); or with
 ``--run`` a ``panorecon train`` output (its point_cloud.ply and cameras.json): ``--views`` of its pseudo-label
 cameras, spread over them, colours from the DC band (the trained degree), the trained opacities and shapes, which
 blend far more Gaussians per pixel than the random scene. Gradients of a fixed random weighting of image, alpha
@@ -34,7 +34,7 @@ import time
 def main(argv=None) -> dict:
     import torch
 
-    from panorecon.evaluation.bench_rasterizer import scene, trained_views
+    from panorecon.bench.rasterizer import scene, trained_views
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
     from panorecon.splat.rasterize import cpu_backend
     from panorecon.splat.rasterize.sh import C0

@@ -49,7 +49,7 @@ def inputs(run: str | None, views: int, gaussians: int):
     """(means, quats, scales, opacities, sh0, [(viewmat [1,4,4], K [1,3,3])], size)."""
     import torch
 
-    from panorecon.evaluation.bench_rasterizer import scene, trained_views
+    from panorecon.bench.rasterizer import scene, trained_views
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
     from panorecon.splat.rasterize.sh import C0
 

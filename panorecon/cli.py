@@ -526,7 +526,7 @@ MAX_RUNS = 10_000  # a larger suite needs an explicit --max-runs
 
 
 def cmd_bench(args) -> int:
-    from .evaluation.bench import run_bench
+    from .bench.command import run_bench
 
     return run_bench(
         args.suite, args.baseline, args.out, quick=args.quick, update_baseline=args.update_baseline, device=args.device

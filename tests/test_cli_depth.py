@@ -140,7 +140,7 @@ def test_scenes_list_root(tmp_path, pano, capsys):
 
 
 def test_depth_kind_z(tmp_path, pano):
-    from panorecon.io.depth import erp_z_to_distance_factor
+    from panorecon.geometry import erp_z_to_distance_factor
 
     d = np.load(pano / "distance.npy")
     np.save(tmp_path / "z.npy", d / erp_z_to_distance_factor(*d.shape))

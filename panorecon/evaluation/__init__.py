@@ -1,1 +1,2 @@
-"""Evaluation: ablation suites (``panorecon ablate``), their reports, and the benchmarks (``panorecon bench``)."""
+"""Evaluation: ablation suites (``panorecon ablate``), their statistics and reports (the micro-benchmarks behind
+``panorecon bench`` are ``panorecon.bench``)."""

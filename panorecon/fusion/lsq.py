@@ -26,7 +26,7 @@ the assembled matrix; with ``cg_device`` the same Jacobi-PCG runs in torch, on a
 from each pixel's data-weighted mean of its observations at the current per-view scales (the level's own fine
 detail), the upsampled coarser solution where no view sees the pixel (``warm_start='coarse'``: that solution
 everywhere, which leaves the CG to rebuild the detail the coarser grid could not hold: 36-39 iterations per
-level instead of 5-11 on bench_fusion_moge's 2048 x 1024 inputs).
+level instead of 5-11 on bench/fusion_moge.py's 2048 x 1024 inputs).
 s is updated in closed form between solves (block coordinate descent), its gauge fixed by mean(s) = 0; metric
 teachers keep s = 0. Systems are assembled and checked in float64: the Jacobi-PCG's stencil products run in
 float32 (``cg_precision='mixed'``: half the memory traffic) with the residual recomputed in float64 and

@@ -31,6 +31,7 @@ from .sphere import (
     erp_directions,
     erp_pixel_solid_angle,
     erp_pixel_to_lonlat,
+    erp_z_to_distance_factor,
     lonlat_to_direction,
     lonlat_to_erp_pixel,
 )
@@ -47,6 +48,7 @@ __all__ = [
     "erp_directions",
     "erp_pixel_solid_angle",
     "erp_pixel_to_lonlat",
+    "erp_z_to_distance_factor",
     "erp_point_cloud",
     "back_project_erp",
     "thin_on_sphere",

@@ -1,18 +1,19 @@
-"""The one point-cloud type every point source returns, with PLY I/O in NumPy (binary little-endian vertex
-PLYs, the layout Open3D writes; any other PLY is read through Open3D, imported only then)."""
+"""The one point-cloud type every point source returns (its PLY files through ``io.ply``, on plyfile), and the
+ERP back-projection and spherical thinning that make and reduce one."""
 
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from ..io import PanoreconInputError
+from ..io.ply import read_ply, write_ply
 from .layouts import fibonacci_directions
 from .sphere import direction_to_lonlat, erp_pixel_to_lonlat, lonlat_to_direction
 
-PLY_CHUNK = 1 << 20  # vertices per write: save_ply's extra memory is one chunk, whatever the cloud's size
+CHUNK = 1 << 20  # points per band in thin_on_sphere: its float64 temporaries are one band, whatever the size
 
 
 @dataclass
@@ -70,7 +71,7 @@ class PointCloud:
     def save_ply(self, path: str | os.PathLike, uchar_rgb: bool = False) -> None:
         """Write a binary little-endian PLY (x,y,z, nx,ny,nz as float32; red,green,blue as float32 in [0, 1], or
         with ``uchar_rgb`` as uchar 0-255, the layout COLMAP-derived PLYs use and OpenSplat's reader assumes;
-        view_id int32) atomically."""
+        view_id int32) atomically, streamed (``io.ply.write_ply``)."""
         cols = [("x", self.xyz[:, 0]), ("y", self.xyz[:, 1]), ("z", self.xyz[:, 2])]
         if self.normals is not None:
             cols += [(n, self.normals[:, k]) for k, n in enumerate(("nx", "ny", "nz"))]
@@ -78,51 +79,14 @@ class PointCloud:
         cols += [(n, rgb[:, k]) for k, n in enumerate(("red", "green", "blue"))]
         if self.view_id is not None:
             cols.append(("view_id", self.view_id))
-        kinds = {"view_id": "int"} | (dict.fromkeys(("red", "green", "blue"), "uchar") if uchar_rgb else {})
-        dtypes = {"float": "<f4", "int": "<i4", "uchar": "u1"}
-        dtype = [(n, dtypes[kinds.get(n, "float")]) for n, _ in cols]
-        header = (
-            "ply\nformat binary_little_endian 1.0\ncomment panorecon\n"
-            f"element vertex {len(self)}\n"
-            + "".join(f"property {kinds.get(n, 'float')} {n}\n" for n, _ in cols)
-            + "end_header\n"
-        )
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")  # geometry sits below io/
-        try:
-            with open(tmp, "wb") as f:  # streamed: PLY_CHUNK vertices interleaved at a time, not a full copy
-                f.write(header.encode("ascii"))
-                for i in range(0, len(self), PLY_CHUNK):
-                    data = np.empty(min(PLY_CHUNK, len(self) - i), dtype=dtype)
-                    for n, v in cols:
-                        data[n] = v[i : i + len(data)]
-                    f.write(data.tobytes())
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
+        write_ply(path, cols, comments=["panorecon"])
 
     @classmethod
     def load_ply(cls, path: str | os.PathLike) -> PointCloud:
-        """Read a PLY written by ``save_ply`` or any PLY with positions (colours optional; uint8 ones are / 255),
-        checked: the header, the file size against the header's vertex count (binary files), the count read,
-        and finite positions. A bad file raises ``PanoreconInputError`` naming it."""
-        from ..io import PanoreconInputError
-
-        path = Path(path)
-        if not path.is_file():
-            raise PanoreconInputError(f"point cloud {path}: no such file")
-        n = check_ply_header(path)
-        raw = path.read_bytes()
-        fields = _binary_vertex_fields(raw)
-        if fields is None:
-            fields = _open3d_fields(path)
-        got = len(fields["x"]) if {"x", "y", "z"} <= set(fields) else 0
-        if got != n:
-            raise PanoreconInputError(
-                f"point cloud {path}: read {got} of the {n} vertices its header announces "
-                "(cut-off or corrupt file; expected a PLY with x, y, z)"
-            )
+        """Read a PLY written by ``save_ply`` or any PLY with positions (``io.ply.read_ply``: colours optional,
+        uint8 ones are / 255; other scalar properties go to ``meta["scalars"]`` as [N, 1]), checked: the file's
+        structure and size, and finite positions. A bad file raises ``PanoreconInputError`` naming it."""
+        fields = read_ply(path, "point cloud")
         xyz = np.stack([fields.pop(k) for k in ("x", "y", "z")], 1)
         if not np.isfinite(xyz).all():
             raise PanoreconInputError(
@@ -134,130 +98,8 @@ class PointCloud:
             rgb = rgb / 255.0 if rgb.dtype == np.uint8 else rgb
         normals = np.stack([fields.pop(k) for k in ("nx", "ny", "nz")], 1) if "nx" in fields else None
         view_id = fields.pop("view_id", None)
-        extra = {k: np.asarray(v).reshape(len(xyz), -1) for k, v in fields.items()}
+        extra = {k: v.reshape(len(xyz), -1) for k, v in fields.items()}
         return cls(xyz, rgb, normals, view_id, {"scalars": extra} if extra else {})
-
-
-_PLY_TYPES = {
-    "float": "<f4",
-    "float32": "<f4",
-    "double": "<f8",
-    "float64": "<f8",
-    "uchar": "u1",
-    "uint8": "u1",
-    "char": "i1",
-    "int8": "i1",
-    "ushort": "<u2",
-    "uint16": "<u2",
-    "short": "<i2",
-    "int16": "<i2",
-    "uint": "<u4",
-    "uint32": "<u4",
-    "int": "<i4",
-    "int32": "<i4",
-}
-
-
-def _binary_vertex_fields(raw: bytes) -> dict | None:
-    """name -> [N] array of a binary little-endian PLY whose only element is ``vertex`` with scalar
-    properties; None for any other PLY (ASCII, big-endian, faces, lists)."""
-    end = raw.find(b"end_header\n")
-    if not raw.startswith(b"ply\n") or end < 0:
-        return None
-    lines = [ln.split() for ln in raw[:end].decode("ascii", "replace").splitlines()[1:]]
-    lines = [ln for ln in lines if ln and ln[0] not in ("comment", "obj_info")]
-    if not lines or lines[0] != ["format", "binary_little_endian", "1.0"]:
-        return None
-    elements = [ln for ln in lines if ln[0] == "element"]
-    props = [ln for ln in lines if ln[0] == "property"]
-    if len(elements) != 1 or elements[0][1] != "vertex" or any(len(p) != 3 or p[1] not in _PLY_TYPES for p in props):
-        return None
-    n = int(elements[0][2])
-    dtype = np.dtype([(p[2], _PLY_TYPES[p[1]]) for p in props])
-    body = raw[end + len(b"end_header\n") :]
-    if len(body) < n * dtype.itemsize:
-        return None  # cut off: the caller's header check names the file
-    data = np.frombuffer(body, dtype=dtype, count=n)
-    return {name: np.array(data[name]) for name in dtype.names}
-
-
-def _open3d_fields(path: Path) -> dict:
-    """name -> [N] (or [N, k]) arrays of any PLY Open3D reads (Open3D imported here only)."""
-    import open3d as o3d
-
-    from ..io import quiet_native_stderr
-
-    with quiet_native_stderr():  # Open3D prints "Read PLY failed" itself; load_ply's checks say why
-        pc = o3d.t.io.read_point_cloud(str(path))
-    if "positions" not in pc.point:
-        return {}
-    out = {}
-    for key in pc.point:
-        v = pc.point[key].numpy()
-        names = {"positions": ("x", "y", "z"), "colors": ("red", "green", "blue"), "normals": ("nx", "ny", "nz")}
-        if key in names:
-            out.update({n: v[:, k] for k, n in enumerate(names[key])})
-        else:
-            out[key] = v.reshape(len(v), -1)[:, 0] if v.ndim > 1 and v.shape[1] == 1 else v
-    return out
-
-
-def check_ply_header(path: Path) -> int:
-    """Check a PLY's header (and, for a binary file whose elements have no list properties, its exact size)
-    -> the vertex count. Raises ``PanoreconInputError`` naming the file and what is wrong."""
-    from ..io import PanoreconInputError
-
-    with open(path, "rb") as f:
-        head = f.read(65536)
-    end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
-        raise PanoreconInputError(f"point cloud {path}: not a PLY file (expected a 'ply' header ending in end_header)")
-    body_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
-    lines = head[:end].decode("ascii", "replace").splitlines()
-    fmt, elements, vertex_props = None, [], set()  # elements: [name, count, row bytes or None (list properties)]
-    for ln in lines:
-        w = ln.split()
-        if not w:
-            continue
-        try:
-            if w[0] == "format":
-                fmt = w[1]
-            elif w[0] == "element":
-                elements.append([w[1], int(w[2]), 0])
-            elif w[0] == "property" and elements:
-                if elements[-1][0] == "vertex":
-                    vertex_props.add(w[-1])
-                scalar = w[1] in _PLY_TYPES and elements[-1][2] is not None
-                size = np.dtype(_PLY_TYPES[w[1]]).itemsize if scalar else None
-                elements[-1][2] = None if size is None else elements[-1][2] + size
-        except (IndexError, ValueError):
-            raise PanoreconInputError(f"point cloud {path}: malformed PLY header line {ln!r}") from None
-    vertex = [e for e in elements if e[0] == "vertex"]
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian") or not vertex or vertex[0][1] <= 0:
-        raise PanoreconInputError(
-            f"point cloud {path}: the PLY header has no vertices or an unknown format "
-            f"({fmt!r}); expected 'element vertex N' with N > 0"
-        )
-    if not {"x", "y", "z"} <= vertex_props:
-        raise PanoreconInputError(f"point cloud {path}: its vertices have no x, y, z properties")
-    if fmt == "ascii":
-        with open(path, "rb") as f:
-            f.seek(body_start)
-            rows = sum(1 for line in f if line.strip())
-        if rows < sum(e[1] for e in elements):
-            raise PanoreconInputError(
-                f"point cloud {path}: {rows} data lines for the {sum(e[1] for e in elements)} "
-                "rows its header announces (cut-off or corrupt file)"
-            )
-    elif all(e[2] is not None for e in elements):
-        expected = body_start + sum(e[1] * e[2] for e in elements)
-        actual = path.stat().st_size
-        if actual != expected:
-            raise PanoreconInputError(
-                f"point cloud {path}: {actual} bytes, expected {expected} for the "
-                f"{vertex[0][1]} vertices its header announces (cut-off or corrupt file)"
-            )
-    return vertex[0][1]
 
 
 def erp_point_cloud(
@@ -329,10 +171,8 @@ def thin_on_sphere(pc: PointCloud, n_points: int) -> tuple[PointCloud, dict]:
     if len(pc) <= n_points:
         return pc, {"sites": None, "points": len(pc), "thinned": False}
     lon, lat = np.empty(len(pc), np.float32), np.empty(len(pc), np.float32)
-    for i in range(0, len(pc), PLY_CHUNK):
-        lon[i : i + PLY_CHUNK], lat[i : i + PLY_CHUNK] = direction_to_lonlat(
-            pc.xyz[i : i + PLY_CHUNK].astype(np.float64)
-        )
+    for i in range(0, len(pc), CHUNK):
+        lon[i : i + CHUNK], lat[i : i + CHUNK] = direction_to_lonlat(pc.xyz[i : i + CHUNK].astype(np.float64))
     best, sites = None, n_points
     for _ in range(8):
         keep = _nearest_to_sites(pc.xyz, lon, lat, sites)
@@ -365,13 +205,13 @@ def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites
     centres = lonlat_to_direction(*erp_pixel_to_lonlat(rr, cc, g, 2 * g)).reshape(-1, 3)
     site_of_cell = cKDTree(site_dirs).query(centres, workers=-1)[1]
     site, cos = np.empty(len(lon), np.int64), np.empty(len(lon), np.float64)
-    for i in range(0, len(lon), PLY_CHUNK):
-        lo, la = lon[i : i + PLY_CHUNK].astype(np.float64), lat[i : i + PLY_CHUNK].astype(np.float64)
+    for i in range(0, len(lon), CHUNK):
+        lo, la = lon[i : i + CHUNK].astype(np.float64), lat[i : i + CHUNK].astype(np.float64)
         row = np.clip(((0.5 - la / np.pi) * g).astype(np.int64), 0, g - 1)
         col = np.mod(((lo / (2 * np.pi) + 0.5) * 2 * g).astype(np.int64), 2 * g)
-        s = site[i : i + PLY_CHUNK] = site_of_cell[row * 2 * g + col]
-        d = xyz[i : i + PLY_CHUNK].astype(np.float64)
-        cos[i : i + PLY_CHUNK] = np.einsum("nk,nk->n", d, site_dirs[s]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+        s = site[i : i + CHUNK] = site_of_cell[row * 2 * g + col]
+        d = xyz[i : i + CHUNK].astype(np.float64)
+        cos[i : i + CHUNK] = np.einsum("nk,nk->n", d, site_dirs[s]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
     return _nearest_per_site(site, cos, n_sites)
 
 

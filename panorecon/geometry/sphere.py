@@ -82,6 +82,12 @@ def erp_pixel_solid_angle(height: int, width: int) -> np.ndarray:
     return (2 * np.pi / width) * (np.sin(edges[:-1]) - np.sin(edges[1:]))
 
 
+def erp_z_to_distance_factor(height: int, width: int) -> np.ndarray:
+    """[H, W] float64: distance / z for cube-face z-depth, 1 / max(|dx|, |dy|, |dz|) of each unit ERP ray (the
+    cube face a ray passes through is the axis of its largest component)."""
+    return 1.0 / np.abs(erp_directions(height, width)).max(-1)
+
+
 def distance_to_points(distance: Array, directions: Array) -> Array:
     """Ray distance [...] (metres) and unit directions [..., 3] -> points [..., 3] (metres)."""
     return distance[..., None] * directions

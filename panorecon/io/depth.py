@@ -1,4 +1,4 @@
-"""True-depth files for ERP panoramas: 16-bit PNG, OpenEXR and NPY -> ray distance in metres (float32).
+"""True-depth files for ERP panoramas: 16-bit PNG, OpenEXR and NPY -> the stored values, checked.
 
 A depth file stores ``value * scale`` metres (``scale``: metres per stored unit; default 1 for .npy/.exr,
 0.001 for 16-bit PNG). Integer depth is a scaled unit: panorecon assumes millimetres for a 16-bit PNG (the
@@ -7,7 +7,8 @@ convention of Structured3D); Stanford2D3D stores 1/512 m (``--depth-scale 0.0019
 (for a closed scene, a room, above ``CLOSED_MAX_MEDIAN_M``) gets a warning naming the likely unit and the
 ``--depth-scale`` that fixes it (``unit_warning``). Complex,
 boolean and object arrays are refused. Invalid values become NaN: 0, 65535 in a 16-bit PNG (the usual "missing" code),
-anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is:
+anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is (the conversion to ray distance,
+which needs the ERP geometry, is ``panorecon.scenes.real.read_erp_depth``):
 
 - ``distance``: metres along the ray from the panorama centre (panorecon's ERP depth);
 - ``z``: metres along the axis of the cube face the ray passes through, as in a panorama stitched from six
@@ -16,15 +17,12 @@ anything >= 1e9, NaN, +-inf and negative values. ``kind`` says what the value is
 
 from __future__ import annotations
 
-import logging
 import os
 from pathlib import Path
 
 import numpy as np
 
-from .files import PanoreconInputError, check_erp_shape, first_sentence, quiet_native_stderr, read_image
-
-log = logging.getLogger("panorecon.depth")
+from .files import PanoreconInputError, first_sentence, quiet_native_stderr, read_image
 
 DEPTH_KINDS = ("distance", "z")
 DEPTH_SUFFIXES = (".png", ".exr", ".npy")
@@ -170,34 +168,3 @@ def _read_exr(path: Path) -> np.ndarray:
     if data.ndim == 3:  # an RGB(A) layer stored as one channel of pixel tuples: its first component
         data = data[..., 0]
     return data.astype(np.float64)
-
-
-def erp_z_to_distance_factor(height: int, width: int) -> np.ndarray:
-    """[H, W] float64: distance / z for cube-face z-depth, 1 / max(|dx|, |dy|, |dz|) of each unit ERP ray."""
-    from ..geometry import erp_directions
-
-    return 1.0 / np.abs(erp_directions(height, width)).max(-1)
-
-
-def read_erp_depth(path: str | os.PathLike, scale: float | None = None, kind: str = "distance") -> np.ndarray:
-    """A panorama's true depth file -> ray distance [H, W] float32 metres, NaN where invalid.
-
-    Raises PanoreconInputError for a file that is not a 2:1 ERP, a bad scale or kind, or a map with no
-    valid pixel."""
-    path = Path(path)
-    if kind not in DEPTH_KINDS:
-        raise PanoreconInputError(f"--depth-kind {kind!r}: expected one of {', '.join(DEPTH_KINDS)}")
-    scale = default_depth_scale(path) if scale is None else float(scale)
-    if not (np.isfinite(scale) and scale > 0):
-        raise PanoreconInputError(f"--depth-scale {scale}: expected a positive number of metres per stored unit")
-    raw = read_depth_raw(path)
-    check_erp_shape(raw.shape, str(path))
-    d = raw * scale
-    if kind == "z":
-        d = d * erp_z_to_distance_factor(*d.shape)
-    if not np.isfinite(d).any():
-        raise PanoreconInputError(f"{path}: the depth map has no valid pixel (all 0, 65535, NaN, negative or >= 1e9)")
-    warning = unit_warning(d, scale, str(path))
-    if warning:
-        log.warning("WARNING: %s", warning)
-    return d.astype(np.float32)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import PanoreconInputError
-from .real import DepthSpec, scene_from_image
+from .real import DepthSpec, read_erp_depth, scene_from_image
 
 
 @dataclass(frozen=True)
@@ -109,8 +109,6 @@ def _s2d3d_file(root: Path, key: str, modality: str, ext: str) -> Path:
 
 
 def _s2d3d_rotation(xyz_path: Path, depth: DepthSpec, position: np.ndarray) -> tuple[np.ndarray | None, str]:
-    from ..io.depth import read_erp_depth
-
     xyz = _read_exr_rgb(xyz_path)
     dist = read_erp_depth(depth.path, depth.scale, depth.kind).astype(np.float64)
     if xyz.shape[:2] != dist.shape:

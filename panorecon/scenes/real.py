@@ -3,6 +3,7 @@ attached either as a model's prediction (the built-in HoHoNet scene) or as true 
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,10 +11,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..geometry import erp_z_to_distance_factor
 from ..io import PanoreconInputError, read_image
-from ..io.depth import read_erp_depth
+from ..io.depth import DEPTH_KINDS, default_depth_scale, read_depth_raw, unit_warning
+from ..io.files import check_erp_shape
 from .base import Scene
 from .registry import SceneSpec, register_scene
+
+log = logging.getLogger("panorecon.depth")
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,32 @@ def scene_from_image(
     )
     scene.sky = np.zeros(scene.rgb.shape[:2], bool)
     return with_depth(scene, depth) if depth is not None else scene
+
+
+def read_erp_depth(path: str | os.PathLike, scale: float | None = None, kind: str = "distance") -> np.ndarray:
+    """A panorama's true depth file -> ray distance [H, W] float32 metres, NaN where invalid (the file's stored
+    values from ``io.depth.read_depth_raw`` times ``scale`` metres per unit; ``kind`` "z": cube-face z-depth,
+    brought to ray distance).
+
+    Raises PanoreconInputError for a file that is not a 2:1 ERP, a bad scale or kind, or a map with no
+    valid pixel."""
+    path = Path(path)
+    if kind not in DEPTH_KINDS:
+        raise PanoreconInputError(f"--depth-kind {kind!r}: expected one of {', '.join(DEPTH_KINDS)}")
+    scale = default_depth_scale(path) if scale is None else float(scale)
+    if not (np.isfinite(scale) and scale > 0):
+        raise PanoreconInputError(f"--depth-scale {scale}: expected a positive number of metres per stored unit")
+    raw = read_depth_raw(path)
+    check_erp_shape(raw.shape, str(path))
+    d = raw * scale
+    if kind == "z":
+        d = d * erp_z_to_distance_factor(*d.shape)
+    if not np.isfinite(d).any():
+        raise PanoreconInputError(f"{path}: the depth map has no valid pixel (all 0, 65535, NaN, negative or >= 1e9)")
+    warning = unit_warning(d, scale, str(path))
+    if warning:
+        log.warning("WARNING: %s", warning)
+    return d.astype(np.float32)
 
 
 def with_depth(scene: Scene, depth: DepthSpec) -> Scene:

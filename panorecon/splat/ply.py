@@ -1,16 +1,17 @@
 """The standard 3DGS PLY layout, as the original code and common viewers read it:
 x, y, z, nx, ny, nz, f_dc_0..2, f_rest_0..(3*(K-1)-1) (channel-major), opacity (logit), scale_0..2 (log),
-rot_0..3 (wxyz); binary little-endian float32."""
+rot_0..3 (wxyz); binary little-endian float32, through ``io.ply`` (plyfile), checked against the original 3DGS
+code's ``save_ply``/``load_ply`` in ``tests/splat/test_ply_3dgs.py``."""
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..io import PanoreconInputError, atomic_write
+from ..io import PanoreconInputError
+from ..io.ply import read_ply, write_ply
 from .model import GaussianModel
 
 
@@ -24,6 +25,7 @@ def ply_properties(n_rest: int) -> list[str]:
 
 
 def save_ply(model: GaussianModel, path: str | os.PathLike) -> None:
+    """Write ``model`` in the 3DGS layout (float32; normals 0, as the original writes them), atomically."""
     with torch.no_grad():
         n = len(model)
         # f_rest is channel-major: all bands of red, then green, then blue
@@ -38,42 +40,36 @@ def save_ply(model: GaussianModel, path: str | os.PathLike) -> None:
             model.quats,
         ]
         data = torch.cat([c.detach().float().cpu() for c in cols], 1).numpy()
-    names = ply_properties(rest.shape[1])
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {n}\n" + "".join(f"property float {p}\n" for p in names) + "end_header\n"
-    )
-    with atomic_write(path) as tmp, open(tmp, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(np.ascontiguousarray(data, dtype="<f4").tobytes())
+    write_ply(path, [(name, data[:, i]) for i, name in enumerate(ply_properties(rest.shape[1]))])
 
 
 def load_ply(path: str | os.PathLike) -> GaussianModel:
-    path = Path(path)
-    if not path.is_file():
-        raise PanoreconInputError(f"{path}: no such file")
-    raw = path.read_bytes()
-    end = raw.find(b"end_header\n")
-    if not raw.startswith(b"ply\n") or end < 0:
-        raise PanoreconInputError(f"{path}: not a PLY file")
-    lines = raw[:end].decode("ascii", "replace").splitlines()
-    if "format binary_little_endian 1.0" not in lines:
-        raise PanoreconInputError(f"{path}: expected a binary little-endian 3DGS PLY")
-    n = int(next(ln.split()[2] for ln in lines if ln.startswith("element vertex")))
-    names = [ln.split()[2] for ln in lines if ln.startswith("property float")]
-    n_rest = sum(p.startswith("f_rest_") for p in names)
-    if names != ply_properties(n_rest) or n_rest % 3:
-        raise PanoreconInputError(f"{path}: properties {names[:6]}... are not the 3DGS layout")
-    body = raw[end + len(b"end_header\n") :]
-    if len(body) < n * len(names) * 4:
-        raise PanoreconInputError(f"{path}: truncated ({len(body)} bytes for {n} Gaussians)")
-    a = torch.from_numpy(np.frombuffer(body, dtype="<f4", count=n * len(names)).reshape(n, len(names)).copy())
+    """A 3DGS PLY -> ``GaussianModel`` (float32). Properties are found by name, as the original ``load_ply`` finds
+    them (f_rest_i in numeric order; nx, ny, nz and any others ignored), so a file from another 3DGS writer
+    reads whatever its property order. A file without the layout raises ``PanoreconInputError`` naming it."""
+    fields = read_ply(path, "3DGS PLY")
+    n_rest = sum(name.startswith("f_rest_") for name in fields)
     k = n_rest // 3
+    need = [p for p in ply_properties(n_rest) if p not in ("nx", "ny", "nz")]
+    missing = [p for p in need if p not in fields]
+    if missing or n_rest % 3 or round((k + 1) ** 0.5) ** 2 != k + 1:
+        raise PanoreconInputError(
+            f"3DGS PLY {path}: properties {list(fields)[:6]}... are not the 3DGS layout "
+            f"(missing {missing[:4]}, {n_rest} f_rest values; expected {need[:3]}..., f_rest_0..3*((d+1)^2-1)-1)"
+        )
+
+    n = len(fields["x"])
+
+    def cols(names: list[str]) -> torch.Tensor:  # [N, len(names)] float32
+        return torch.from_numpy(
+            np.stack([fields[p].astype(np.float32) for p in names], 1) if names else np.zeros((n, 0), np.float32)
+        )
+
     return GaussianModel(
-        a[:, 0:3],
-        a[:, -4:],
-        a[:, -7:-4],
-        a[:, -8],
-        a[:, 6:9][:, None, :],
-        a[:, 9 : 9 + n_rest].reshape(n, 3, k).transpose(1, 2).contiguous(),
+        cols(["x", "y", "z"]),
+        cols([f"rot_{i}" for i in range(4)]),
+        cols([f"scale_{i}" for i in range(3)]),
+        cols(["opacity"])[:, 0],
+        cols([f"f_dc_{i}" for i in range(3)])[:, None, :],
+        cols([f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, k).transpose(1, 2).contiguous(),
     )

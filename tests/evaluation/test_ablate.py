@@ -3,8 +3,8 @@
 import pandas as pd
 import pytest
 
+from panorecon.bench.command import compare
 from panorecon.evaluation.ablate import run_suite
-from panorecon.evaluation.bench import compare
 from panorecon.evaluation.suite import load_suite
 from panorecon.metrics.lpips import lpips_or_reason
 

@@ -67,7 +67,7 @@ def test_lane_use_counts_the_blends_a_list_free_walk_finds():
     import numpy as np
     import torch
 
-    from panorecon.evaluation.bench_rasterizer import scene
+    from panorecon.bench.rasterizer import scene
     from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
 
     size = 32

@@ -12,6 +12,7 @@ from panorecon.geometry import (
     erp_directions,
     erp_pixel_solid_angle,
     erp_pixel_to_lonlat,
+    erp_z_to_distance_factor,
     lonlat_to_direction,
 )
 
@@ -74,3 +75,29 @@ class TestRoundTrip:
 def test_solid_angles_sum_to_sphere():
     for h in (2, 7, 512):
         assert erp_pixel_solid_angle(h, 2 * h).sum() * 2 * h == pytest.approx(4 * math.pi, rel=1e-12)
+
+
+def _slow_z_factor(h, w):
+    """Per pixel: the cube face a ray passes through is its largest |component|; z is the point's
+    coordinate along that axis, so distance / z = 1 / |that component|."""
+    out = np.empty((h, w))
+    dirs = erp_directions(h, w)
+    for r in range(h):
+        for c in range(w):
+            x = dirs[r, c]
+            axis = int(np.argmax(np.abs(x)))
+            point = 1.0 * x  # the point at distance 1
+            out[r, c] = 1.0 / abs(point[axis])
+    return out
+
+
+def test_z_factor_matches_the_per_pixel_reference():
+    np.testing.assert_allclose(erp_z_to_distance_factor(12, 24), _slow_z_factor(12, 24), rtol=1e-12)
+    f = erp_z_to_distance_factor(64, 128)
+    assert f.min() >= 1.0 and f.max() <= np.sqrt(3) + 1e-9
+
+
+def test_a_distance_read_as_z_is_not_the_same():
+    # the distinction matters: a far corner of a cube face differs by up to sqrt(3)
+    f = erp_z_to_distance_factor(16, 32)
+    assert (f > 1.5).any()

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from panorecon.geometry import PointCloud, back_project_erp, erp_directions, thin_on_sphere
-from panorecon.geometry import pointcloud as pcm
 
 
 def _erp_cloud(h):
@@ -58,17 +57,6 @@ def test_banded_back_projection_equals_the_whole_map():
     np.testing.assert_allclose(xyz, d * dist[keep][:, None], rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(col, rgb[keep] / np.float32(255))
     np.testing.assert_array_equal(vid, np.argmax(d @ fwd.T, axis=1))
-
-
-def test_streamed_ply_equals_the_cloud(tmp_path, monkeypatch):
-    monkeypatch.setattr(pcm, "PLY_CHUNK", 7)  # many chunks, the last one short
-    rng = np.random.default_rng(1)
-    pc = PointCloud(rng.normal(size=(50, 3)), rng.random((50, 3)), view_id=rng.integers(0, 9, 50))
-    pc.save_ply(tmp_path / "c.ply")
-    back = PointCloud.load_ply(tmp_path / "c.ply")
-    np.testing.assert_array_equal(back.xyz, pc.xyz)
-    np.testing.assert_array_equal(back.rgb, pc.rgb)
-    np.testing.assert_array_equal(back.view_id, pc.view_id)
 
 
 def _nearest_per_site_by_sort(site, cos):

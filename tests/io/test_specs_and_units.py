@@ -8,8 +8,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from panorecon.io import PanoreconInputError
-from panorecon.io.depth import PLAUSIBLE_MEDIAN_M, UNIT_CONVENTIONS, read_depth_raw, read_erp_depth, unit_warning
+from panorecon.io.depth import PLAUSIBLE_MEDIAN_M, UNIT_CONVENTIONS, read_depth_raw, unit_warning
 from panorecon.io.specs import TEACHER_OPTIONS, SpecError, parse_options, split_teacher_spec
+from panorecon.scenes.real import read_erp_depth
 
 FILE = TEACHER_OPTIONS["file"]
 keys = st.text(st.characters(min_codepoint=97, max_codepoint=122), min_size=1, max_size=8)

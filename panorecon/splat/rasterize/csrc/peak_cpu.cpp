@@ -1,4 +1,4 @@
-// The machine's measured limits for the roofline of `panorecon bench` (evaluation/bench_roofline.py), on every
+// The machine's measured limits for the roofline of `panorecon bench` (bench/roofline.py), on every
 // thread of ATen's pool: an FMA loop (peak float32 arithmetic) and a STREAM-like copy (memory bandwidth).
 #include <torch/extension.h>
 #include <ATen/Parallel.h>

@@ -1,13 +1,15 @@
-"""PLY reading is checked: header, size against the vertex count, what Open3D read, finite positions."""
+"""PLY files (io/ply.py on plyfile, through PointCloud): header, size against the vertex count, rows read, finite
+positions; the writer streamed in chunks."""
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+import panorecon.io.ply
 from panorecon.geometry import PointCloud
-from panorecon.geometry.pointcloud import check_ply_header
 from panorecon.io import PanoreconInputError
+from panorecon.io.ply import read_ply
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +23,7 @@ def ply_bytes(tmp_path_factory):
 def test_round_trip_keeps_points_colours_and_view_ids(tmp_path, ply_bytes):
     (tmp_path / "a.ply").write_bytes(ply_bytes)
     pc = PointCloud.load_ply(tmp_path / "a.ply")
-    assert len(pc) == 500 and check_ply_header(tmp_path / "a.ply") == 500
+    assert len(pc) == 500 and len(read_ply(tmp_path / "a.ply")["x"]) == 500
     np.testing.assert_array_equal(pc.view_id, np.arange(500) % 7)
 
 
@@ -90,3 +92,14 @@ def test_a_short_or_positionless_ascii_ply_is_refused(tmp_path, text, needle):
     (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\n" + text)
     with pytest.raises(PanoreconInputError, match=needle):
         PointCloud.load_ply(tmp_path / "a.ply")
+
+
+def test_streamed_ply_equals_the_cloud(tmp_path, monkeypatch):
+    monkeypatch.setattr(panorecon.io.ply, "PLY_CHUNK", 7)  # many chunks, the last one short
+    rng = np.random.default_rng(1)
+    pc = PointCloud(rng.normal(size=(50, 3)), rng.random((50, 3)), view_id=rng.integers(0, 9, 50))
+    pc.save_ply(tmp_path / "c.ply")
+    back = PointCloud.load_ply(tmp_path / "c.ply")
+    np.testing.assert_array_equal(back.xyz, pc.xyz)
+    np.testing.assert_array_equal(back.rgb, pc.rgb)
+    np.testing.assert_array_equal(back.view_id, pc.view_id)

@@ -1,7 +1,7 @@
 """Rasterizer benchmark: forward + backward time of the ``torch`` reference and the ``cpu`` kernel, measured in
 the same run, at 128², 256², 512² with 10k and 100k Gaussians.
 
-    python -m panorecon.evaluation.bench_rasterizer [--quick] [--repeats N] [--stages] [--out result.json]
+    python -m panorecon.bench.rasterizer [--quick] [--repeats N] [--stages] [--out result.json]
 
 Scene: Gaussians uniformly in a box 2-8 m in front of one 60° camera, isotropic-ish scales 1-4 cm (a few
 pixels each at 256²), opacities 0.1-0.9, RGB colours. Median seconds over repeats (the torch reference is
@@ -23,8 +23,8 @@ import time
 
 import torch
 
+from ..evaluation.environment import emit, environment
 from ..io import peak_rss_mb
-from .environment import emit, environment
 
 
 def scene(n: int, seed: int = 0):

@@ -1,9 +1,9 @@
 """Fusion benchmark: the method's fusion (20 Fibonacci views) against MoGe's own merge (``merge_panorama_depth``
 of the ``dlr-moge`` package on its 12 icosahedron-vertex views at 90 degrees), each on its own default views,
 measured in the same run, on a box room whose true ray distance is known, with per-view random scales in
-[0.7, 1.4] and 2 % multiplicative noise. (Equal inputs for both: ``bench_fusion_moge``.)
+[0.7, 1.4] and 2 % multiplicative noise. (Equal inputs for both: ``bench.fusion_moge``.)
 
-    python -m panorecon.evaluation.bench_fusion [--quick] [--repeats N] [--out result.json]
+    python -m panorecon.bench.fusion [--quick] [--repeats N] [--out result.json]
 
 Prints JSON: machine, versions, commit, and per size the median seconds, AbsRel and peak RSS of each
 method (each repeat in a fresh process, so the peak is that run's own; it includes the ~0.3 GB of imports)
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from .environment import emit, environment, in_fresh_process
+from ..evaluation.environment import emit, environment, in_fresh_process
 
 
 def box_distance(d):
@@ -35,7 +35,7 @@ def one_run(method: str, height: int, view_size: int, seed: int) -> dict:
     from panorecon.geometry import ViewDepth, centred_camera, erp_directions, make_layout
     from panorecon.metrics import depth_metrics
 
-    from .bench_fusion_moge import moge_cameras, moge_merge_maps, panorecon_views_as_moge
+    from .fusion_moge import moge_cameras, moge_merge_maps, panorecon_views_as_moge
 
     if method == "fibonacci-lsq":
         layout = make_layout("fibonacci", 20)

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from panorecon.evaluation import bench_rasterizer
+from panorecon.bench import rasterizer as bench_rasterizer
 from panorecon.splat.rasterize import cpu_backend
 
 needs_cpu = pytest.mark.skipif(not cpu_backend.available(), reason="the C++ rasterizer could not be built here")

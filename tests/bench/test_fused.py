@@ -1,10 +1,10 @@
-"""evaluation/bench_fused.py and its guard in ``panorecon bench``: the fused SSIM, SH and loss-term kernels against
+"""bench/fused.py and its guard in ``panorecon bench``: the fused SSIM, SH and loss-term kernels against
 their PyTorch references, as ratios measured in one run; a drift from the reference fails, a slowdown warns."""
 
 import pytest
 
-from panorecon.evaluation import bench_fused
-from panorecon.evaluation.bench import compare
+from panorecon.bench import fused as bench_fused
+from panorecon.bench.command import compare
 from panorecon.splat.rasterize import cpu_backend
 
 

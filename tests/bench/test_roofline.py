@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
-from panorecon.evaluation.bench import compare
-from panorecon.evaluation.bench_roofline import lane_work, roofline, step_stages, trainer_sh_degree
+from panorecon.bench.command import compare
+from panorecon.bench.roofline import lane_work, roofline, step_stages, trainer_sh_degree
 from panorecon.splat.rasterize import cpu_backend
 
 

@@ -1,4 +1,5 @@
-"""Depth files of real panoramas: 16-bit PNG, EXR and NPY readers, invalid codes, z -> distance."""
+"""Depth files of real panoramas (``scenes.real.read_erp_depth`` on ``io.depth``): 16-bit PNG, EXR and NPY readers,
+invalid codes, z -> distance."""
 
 import sys
 
@@ -8,9 +9,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from panorecon.geometry import erp_directions
+from panorecon.geometry import erp_z_to_distance_factor
 from panorecon.io import PanoreconInputError
-from panorecon.io.depth import erp_z_to_distance_factor, read_depth_raw, read_erp_depth
+from panorecon.io.depth import read_depth_raw
+from panorecon.scenes.real import read_erp_depth
 
 
 def _write_exr(path, a, channel="Z"):
@@ -65,26 +67,6 @@ def test_invalid_values_are_masked(tmp_path):
     assert np.isnan(read_erp_depth(tmp_path / "f.exr")[0, :6]).all()
 
 
-def _slow_z_factor(h, w):
-    """Per pixel: the cube face a ray passes through is its largest |component|; z is the point's
-    coordinate along that axis, so distance / z = 1 / |that component|."""
-    out = np.empty((h, w))
-    dirs = erp_directions(h, w)
-    for r in range(h):
-        for c in range(w):
-            x = dirs[r, c]
-            axis = int(np.argmax(np.abs(x)))
-            point = 1.0 * x  # the point at distance 1
-            out[r, c] = 1.0 / abs(point[axis])
-    return out
-
-
-def test_z_factor_matches_the_per_pixel_reference():
-    np.testing.assert_allclose(erp_z_to_distance_factor(12, 24), _slow_z_factor(12, 24), rtol=1e-12)
-    f = erp_z_to_distance_factor(64, 128)
-    assert f.min() >= 1.0 and f.max() <= np.sqrt(3) + 1e-9
-
-
 @given(st.floats(0.1, 50.0), st.integers(0, 2**16))
 def test_z_kind_gives_back_the_ray_distance(dist, seed):
     d = _distance(8, 16, seed) * np.float32(dist / 5)
@@ -95,12 +77,6 @@ def test_z_kind_gives_back_the_ray_distance(dist, seed):
     with tempfile.TemporaryDirectory() as tmp:
         np.save(Path(tmp) / "z.npy", z)
         np.testing.assert_allclose(read_erp_depth(Path(tmp) / "z.npy", kind="z"), d, rtol=1e-6)
-
-
-def test_a_distance_read_as_z_is_not_the_same():
-    # the distinction matters: a far corner of a cube face differs by up to sqrt(3)
-    f = erp_z_to_distance_factor(16, 32)
-    assert (f > 1.5).any()
 
 
 @pytest.mark.parametrize(

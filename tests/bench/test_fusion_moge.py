@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("moge.utils.panorama", reason="the moge extra (MoGe's own merge) is not installed")
 
-from panorecon.evaluation import bench_fusion_moge as bm  # noqa: E402
+from panorecon.bench import fusion_moge as bm  # noqa: E402
 from panorecon.geometry import erp_directions  # noqa: E402
 
 from ..fusion.conftest import box_distance  # noqa: E402

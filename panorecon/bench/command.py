@@ -1,8 +1,8 @@
 """``panorecon bench``: the benchmark CI job.
 
 Runs the tiny ablation suite (fresh cache, so everything is computed), the fusion and the rasterizer
-micro-benchmarks, the fused SSIM and SH kernels against their references (``bench_fused``) and the training step's
-roofline (``bench_roofline``; small: 128², 20k Gaussians), and compares them with a stored baseline
+micro-benchmarks, the fused SSIM and SH kernels against their references (``bench.fused``) and the training step's
+roofline (``bench.roofline``; small: 128², 20k Gaussians), and compares them with a stored baseline
 (``benchmarks/baseline.json``):
 - correctness regressions fail (exit 1): an error metric worse than baseline x ``ERROR_SLACK`` (+ a floor), a
   PSNR more than ``PSNR_SLACK_DB`` below it, the cpu rasterizer or the fused kernels drifting from the torch
@@ -33,9 +33,12 @@ SLOWDOWN_RATIO = 1.5
 def measure(suite_path, quick: bool = True, device: str = "auto") -> dict:
     """Run the suite (its stages on ``device``) and both micro-benchmarks (CPU) -> the numbers the baseline
     stores."""
-    from . import bench_fused, bench_fusion, bench_rasterizer, bench_roofline
-    from .ablate import run_suite
-    from .suite import load_suite
+    from ..evaluation.ablate import run_suite
+    from ..evaluation.suite import load_suite
+    from . import fused as bench_fused
+    from . import fusion as bench_fusion
+    from . import rasterizer as bench_rasterizer
+    from . import roofline as bench_roofline
 
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="panorecon-bench-") as tmp:
@@ -146,7 +149,7 @@ def run_bench(
 ) -> int:
     """Measure, compare, print JSON; exit status 1 on a correctness regression."""
     from ..device import resolve_device
-    from .environment import environment
+    from ..evaluation.environment import environment
 
     resolve_device(device)  # a CUDA request without CUDA is refused before anything runs
     baseline_path = Path(baseline_path)

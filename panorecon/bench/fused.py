@@ -6,7 +6,7 @@ tenth of the Gaussians visible; and the loss's L1 and Pearson depth terms (``los
 (the two called alternately, after warm-up calls), the ratio reference / fused, and the largest |difference| of
 values and gradients.
 
-    python -m panorecon.evaluation.bench_fused [--quick] [--repeats N] [--out result.json]
+    python -m panorecon.bench.fused [--quick] [--repeats N] [--out result.json]
 
 ``--quick``: 128² x 3 and 20k Gaussians (CI); else 256² x 3 and 200k.
 """
@@ -19,8 +19,8 @@ import time
 
 import torch
 
+from ..evaluation.environment import emit, environment
 from ..io import peak_rss_mb
-from .environment import emit, environment
 
 
 def _paired_ms(fused, reference, repeats: int) -> tuple[float, float]:

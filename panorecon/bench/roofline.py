@@ -1,7 +1,7 @@
 """Per-stage roofline of one cpu training step: each stage's time, the work it did (counted from the run), its
 achieved rate, and its distance from the machine's limits measured in the same run.
 
-    python -m panorecon.evaluation.bench_roofline [--size 256] [--gaussians 200000] [--repeats 5]
+    python -m panorecon.bench.roofline [--size 256] [--gaussians 200000] [--repeats 5]
         [--sh-degree 0|3] [--threads N] [--clock wall|cpu] [--out r.json]
 
 ``--clock cpu`` times every stage and both peaks by this process's CPU seconds divided by the thread count: with
@@ -17,7 +17,7 @@ of two 64 MiB float32 arrays (read + write bytes; the copies' time alone, withou
 first touch, whose page faults cost several times the copies). A stage's floor is max(flops / peak_gflops, bytes /
 peak_gbs); ``distance`` = its time / that floor (1 = at the machine's limit), ``bound`` says which roof is nearer.
 
-The step: the bench rasterizer's scene (evaluation/bench_rasterizer.scene) with half the Gaussians mirrored behind
+The step: the bench rasterizer's scene (bench/rasterizer.scene) with half the Gaussians mirrored behind
 the one 60° camera (as a panorama's label view sees a part of the sphere), the colours at the trainer's active SH
 degree (``--sh-degree``; default the trainer's defaults' active degree, 0: ``TrainConfig.sh_increase_every`` is 0),
 the trainer's loss (L1 + SSIM + Pearson depth against a noisy copy of the rendered depth) and fused Adam over the
@@ -43,8 +43,8 @@ import time
 
 import torch
 
+from ..evaluation.environment import emit, environment
 from ..io import peak_rss_mb
-from .environment import emit, environment
 
 # flops per unit (module docstring): forward, backward
 FLOPS = {
@@ -117,7 +117,7 @@ def _camera(size: int):
 def _model(n: int):
     from panorecon.splat.model import GaussianModel
 
-    from .bench_rasterizer import scene
+    from .rasterizer import scene
 
     means, quats, scales, opac, colors = scene(n)
     means[: n // 2, 0] *= -1  # behind the camera

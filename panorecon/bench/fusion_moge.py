@@ -8,7 +8,7 @@ methods: ``exact`` (as split), ``scale`` (times a random per-view scale in [0.7,
 (AbsRel after median alignment). ``fibonacci-own`` is panorecon on its own default views (20 Fibonacci
 views, ``default_view_size``) split the same way, under ``scale+noise``.
 
-    python -m panorecon.evaluation.bench_fusion_moge [--widths 1024 2048] [--variants nearest linear-1 linear-2]
+    python -m panorecon.bench.fusion_moge [--widths 1024 2048] [--variants nearest linear-1 linear-2]
         [--repeats N] [--out result.json]
 
 Needs the ``moge`` extra (``dlr-moge`` and ``dlr-utils3d``; see scripts/setup.sh). Every run is a fresh
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .environment import emit, environment, in_fresh_process
+from ..evaluation.environment import emit, environment, in_fresh_process
 
 CONDITIONS = ("exact", "scale", "scale+noise")
 METHODS = ("moge", "fuse_views")
