@@ -14,14 +14,13 @@ torch's library finalizers) end the process at once with one line instead of an 
 from __future__ import annotations
 
 import atexit
-import contextlib
 import os
 import signal
 import sys
-import threading
 from collections.abc import Callable, Iterable, Iterator
 
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
+from .io.signals import SIGNALS, _main_thread, held  # noqa: F401  (held: re-exported for callers)
+
 _pending: list[int] = []
 
 
@@ -53,10 +52,6 @@ def _raise(signum, frame):
 
 def _defer(signum, frame):
     _pending.append(signum)
-
-
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
 
 
 def install() -> None:
@@ -91,28 +86,6 @@ def at_step_boundaries(steps: Iterable[int], total: int, checkpoint: Callable[[i
         _pending.clear()
         for s, h in old.items():
             signal.signal(s, h)
-
-
-@contextlib.contextmanager
-def held() -> Iterator[None]:
-    """Run a short block that must not stop halfway (creating a temp file and noting its name; renaming finished
-    outputs into place) with SIGINT and SIGTERM only recorded; when the block has ended the previous handlers
-    come back and the first signal received is raised again (``signal.raise_signal``), so they act on it as if
-    it had just arrived. Main thread only, with Python-set handlers; elsewhere nothing changes."""
-    old = {s: signal.getsignal(s) for s in SIGNALS} if _main_thread() else {}
-    if not old or None in old.values():  # None: a handler set outside Python, which could not be put back
-        yield
-        return
-    received: list[int] = []
-    for s in SIGNALS:
-        signal.signal(s, lambda signum, frame: received.append(signum))
-    try:
-        yield
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-        if received:
-            signal.raise_signal(received[0])
 
 
 def _end_now(signum, frame):

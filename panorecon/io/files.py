@@ -21,7 +21,7 @@ class PanoreconInputError(ValueError):
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, suffix: str | None = None):
     """Yield a temporary path beside ``path``; on success rename it over ``path``, else delete it."""
-    from ..interrupts import held
+    from .signals import held
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -45,10 +45,10 @@ def atomic_write(path: str | os.PathLike, suffix: str | None = None):
 def atomic_write_all(paths: list[str | os.PathLike]):
     """Several outputs of one command, written together: yield a temp path beside each of ``paths`` (as
     ``atomic_write``, each keeping its suffix); when the block ends normally they are renamed into place with
-    SIGINT/SIGTERM held until the last rename (``interrupts.held``), else all are deleted. So an error or an
+    SIGINT/SIGTERM held until the last rename (``signals.held``), else all are deleted. So an error or an
     interrupt before the renames leaves none of the outputs and the files already at those paths untouched; a
     signal during the renames acts after them, with every output whole."""
-    from ..interrupts import held
+    from .signals import held
 
     with contextlib.ExitStack() as temps:
         with held():  # each temp file is on the stack before a signal can stop this
