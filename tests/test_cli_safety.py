@@ -217,6 +217,12 @@ BODY_CASES = [
     ),
     ("train: --source fibonacci without --teacher", *_with(("train",), drop=("--teacher",)), None, "needs --teacher"),
     ("generate: --lora missing", *_with(("generate",), lora=f"{W}/no-lora.safetensors"), None, "no-lora"),
+    (
+        "generate: --model a hub id that is not in the local cache",
+        *_with(("generate",), model="nobody/none"),
+        None,
+        "nobody/none.*not in the local Hugging Face cache",
+    ),
     ("mesh: a one-point cloud", ("mesh",), [f"{W}/one.ply"], BASE[("mesh",)][1], r"one\.ply: 1 points"),
 ]
 CASES = cases() + BODY_CASES

@@ -107,6 +107,11 @@ class PanoramaGenerator:
             raise _load_error(model, f"{path} has no model_index.json or unet/ folder")
         if not path.exists() and ("/" not in model or model.startswith((".", "/"))):
             raise _load_error(model, f"no such folder {path.resolve()}")
+        if not path.exists():  # a hub id: only the local cache counts; checked before diffusers warns about anything
+            from huggingface_hub import try_to_load_from_cache
+
+            if not isinstance(try_to_load_from_cache(model, "unet/config.json"), str):
+                raise _load_error(model, "not found locally (not a folder, and not in the local Hugging Face cache)")
         kw = {"local_files_only": True}
         try:
             gen = cls(
