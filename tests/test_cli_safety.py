@@ -217,7 +217,7 @@ BODY_CASES = [
     ),
     ("train: --source fibonacci without --teacher", *_with(("train",), drop=("--teacher",)), None, "needs --teacher"),
     ("generate: --lora missing", *_with(("generate",), lora=f"{W}/no-lora.safetensors"), None, "no-lora"),
-    ("mesh: a one-point cloud", ("mesh",), [f"{W}/one.ply"], BASE[("mesh",)][1], r"one\.ply: 1 points"),
+    ("mesh: a one-point cloud", ("mesh",), [f"{W}/one.ply"], BASE[("mesh",)][1], None, r"one\.ply: 1 points"),
 ]
 CASES = cases() + BODY_CASES
 
