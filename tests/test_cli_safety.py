@@ -223,7 +223,7 @@ BODY_CASES = [
         None,
         "nobody/none.*not in the local Hugging Face cache",
     ),
-    ("mesh: a one-point cloud", ("mesh",), [f"{W}/one.ply"], BASE[("mesh",)][1], r"one\.ply: 1 points"),
+    ("mesh: a one-point cloud", ("mesh",), [f"{W}/one.ply"], BASE[("mesh",)][1], None, r"one\.ply: 1 points"),
 ]
 CASES = cases() + BODY_CASES
 
