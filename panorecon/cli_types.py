@@ -8,80 +8,43 @@ work starts. Use e.g. ``p.add_argument("--views", type=VIEWS)`` or ``type=int_in
 from __future__ import annotations
 
 import argparse
-import math
 import os
 from pathlib import Path
 
+from . import checks as C
 
-class _IntIn:
-    """An integer in [lo, hi] (hi None: unbounded). A class rather than a closure so argparse's messages
-    and repr() name the range."""
 
-    def __init__(self, lo: int, hi: int | None, what: str = "integer", even: bool = False):
-        self.lo, self.hi, self.what, self.even = lo, hi, what, even
-        self.__name__ = what  # argparse uses it in "invalid <name> value"
+class _Cli:
+    """A ``checks`` check whose CheckError becomes argparse's ArgumentTypeError (argparse then shows its text)."""
 
-    def expected(self) -> str:
-        kind = "an even integer" if self.even else "an integer"
-        return f"{kind} from {self.lo} to {self.hi}" if self.hi is not None else f"{kind} >= {self.lo}"
-
-    def __call__(self, text: str) -> int:
+    def __call__(self, text: str):
         try:
-            value = int(str(text).strip(), 10)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer; expected {self.expected()}") from None
-        if value < self.lo or (self.hi is not None and value > self.hi) or (self.even and value % 2):
-            raise argparse.ArgumentTypeError(f"{value} is out of range; expected {self.expected()}")
-        return value
-
-    def __repr__(self) -> str:
-        return f"int_in({self.lo}, {self.hi})"
+            return super().__call__(text)
+        except C.CheckError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
 
 
-class _FloatIn:
-    """A finite float in [lo, hi] (either bound None: unbounded on that side)."""
-
-    def __init__(self, lo: float | None, hi: float | None, what: str = "number"):
-        self.lo, self.hi, self.what = lo, hi, what
-        self.__name__ = what
-
-    def expected(self) -> str:
-        if self.lo is not None and self.hi is not None:
-            return f"a number from {self.lo:g} to {self.hi:g}"
-        if self.lo is not None:
-            return f"a number >= {self.lo:g}"
-        return "a finite number" if self.hi is None else f"a number <= {self.hi:g}"
-
-    def __call__(self, text: str) -> float:
-        try:
-            value = float(str(text).strip())
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number; expected {self.expected()}") from None
-        if (
-            not math.isfinite(value)
-            or (self.lo is not None and value < self.lo)
-            or (self.hi is not None and value > self.hi)
-        ):
-            raise argparse.ArgumentTypeError(f"{text} is out of range; expected {self.expected()}")
-        return value
+class _IntIn(_Cli, C.IntIn):
+    """An integer in [lo, hi] (hi None: unbounded); see ``checks.IntIn``."""
 
 
-class _FiniteVector:
-    """``n`` comma-separated finite numbers, e.g. ``x,y,z`` -> a tuple of floats."""
+class _FloatIn(_Cli, C.FloatIn):
+    """A finite float in [lo, hi]; see ``checks.FloatIn``."""
 
-    def __init__(self, n: int, what: str):
-        self.n, self.what = n, what
-        self.__name__ = what
 
-    def __call__(self, text: str) -> tuple[float, ...]:
-        parts = str(text).split(",")
-        try:
-            values = tuple(float(p) for p in parts)
-        except ValueError:
-            values = ()
-        if len(values) != self.n or not all(math.isfinite(v) for v in values):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {self.n} finite numbers separated by commas")
-        return values
+class _FiniteVector(_Cli, C.FiniteVector):
+    """``n`` comma-separated finite numbers; see ``checks.FiniteVector``."""
+
+
+def cli_check(check):
+    """The command-line form of a ``checks`` check (the same bounds, argparse's error); others as they are."""
+    if isinstance(check, C.IntIn):
+        return _IntIn(check.lo, check.hi, check.what, check.even)
+    if isinstance(check, C.FloatIn):
+        return _FloatIn(check.lo, check.hi, check.what)
+    if isinstance(check, C.FiniteVector):
+        return _FiniteVector(check.n, check.what)
+    return check
 
 
 def finite_vector(n: int, what: str = "vector") -> _FiniteVector:
@@ -99,21 +62,21 @@ def float_in(lo: float | None = None, hi: float | None = None, what: str = "numb
     return _FloatIn(lo, hi, what)
 
 
-# the project's numeric options; bounds are what the code can do meaningfully, not what fits in memory today
-ERP_WIDTH = int_in(16, 16384, "ERP width", even=True)  # io.files.MAX_ERP_WIDTH; 16 px is the smallest usable pyramid
-VIEWS = int_in(1, 1000, "view count")
-VIEW_SIZE = int_in(16, 4096, "view size")  # below 16 px a view holds no usable depth gradient
-ITERS = int_in(1, 10_000_000, "step count")
-LABEL_RES = int_in(8, 4096, "label view size")
-LABELS = int_in(1, 100_000, "label view count")
-SEED = int_in(0, 2**32 - 1, "seed")
-JOBS = int_in(1, 1024, "job count")
-STEPS = int_in(1, 10_000_000, "step count")
-STEP = int_in(0, 10_000_000, "step")
-POSITIVE_FLOAT = float_in(1e-12, None, "positive number")
-FINITE_FLOAT = float_in(None, None, "number")
-FRACTION = float_in(0.0, 1.0, "fraction")
-LOSS_WEIGHT = float_in(0.0, None, "loss weight")
+# the project's numeric options (their bounds: ``checks``)
+ERP_WIDTH = cli_check(C.ERP_WIDTH)
+VIEWS = cli_check(C.VIEWS)
+VIEW_SIZE = cli_check(C.VIEW_SIZE)
+ITERS = cli_check(C.ITERS)
+LABEL_RES = cli_check(C.LABEL_RES)
+LABELS = cli_check(C.LABELS)
+SEED = cli_check(C.SEED)
+JOBS = cli_check(C.JOBS)
+STEPS = cli_check(C.STEPS)
+STEP = cli_check(C.STEP)
+POSITIVE_FLOAT = cli_check(C.POSITIVE_FLOAT)
+FINITE_FLOAT = cli_check(C.FINITE_FLOAT)
+FRACTION = cli_check(C.FRACTION)
+LOSS_WEIGHT = cli_check(C.LOSS_WEIGHT)
 
 
 def _read_only(path: Path) -> bool:

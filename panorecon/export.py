@@ -330,56 +330,22 @@ def _readme(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def add_export_parser(subparsers) -> None:
-    """Add ``panorecon export SCENE --source NAME --format colmap|nerfstudio --out DIR``."""
-    from . import cli_types as T
-
-    ex = subparsers.add_parser(
-        "export", help="export pseudo-label views + a point source's cloud as a COLMAP model or a nerfstudio dataset"
-    )
-    ex.add_argument("scene", type=T.scene, help="scene name (see `panorecon scenes list`) or an ERP image path")
-    ex.add_argument("--source", required=True, help="point source (see `panorecon sources list`)")
-    ex.add_argument("--teacher", default=None, type=T.teacher_spec, help="depth teacher, for sources that use one")
-    ex.add_argument("--views", type=T.VIEWS, default=None, help="views of the point source")
-    ex.add_argument("--format", dest="format", choices=FORMATS, required=True)
-    ex.add_argument(
-        "--out",
-        required=True,
-        type=T.out_dir_writing("**"),
-        help="output folder (written to a temporary folder, then renamed)",
-    )
-    ex.add_argument("--width", type=T.ERP_WIDTH, default=None, help="ERP width")
-    ex.add_argument(
-        "--labels", type=T.LABELS, default=120, help="pseudo-label views on a Fibonacci layout (default 120)"
-    )
-    ex.add_argument("--res", type=T.LABEL_RES, default=256, help="label view size in pixels (default 256)")
-    ex.add_argument(
-        "--fov",
-        type=T.float_in(1.0, 170.0, "field of view"),
-        default=60.0,
-        help="label field of view in degrees (default 60)",
-    )
-    ex.add_argument("--image-format", choices=IMAGE_FORMATS, default="png")
-    ex.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
-    ex.set_defaults(fn=run_export)
-
-
-def run_export(args) -> int:
-    """Build the cloud with ``run_source`` and export it with the labels (warnings go to the log, stderr);
-    print a summary and each consumer's command -> 0."""
-    from .scenes import scene_from_args
+def run_export(cfg) -> int:
+    """``panorecon export`` (a ``configs.ExportConfig``): build the cloud with ``run_source`` and export it with
+    the labels (warnings go to the log, stderr); print a summary and each consumer's command -> 0."""
     from .sources import run_source
 
-    scene = scene_from_args(args)
-    cloud, report = run_source(scene, args.source, args.teacher, args.views)
-    about = {"scene": scene.name, "source": args.source, "teacher": report.get("teacher")}
+    scene = cfg.scene.load()
+    src = cfg.source
+    cloud, report = run_source(scene, src.source, src.teacher, src.views)
+    about = {"scene": scene.name, "source": src.source, "teacher": report.get("teacher")}
     out = export_scene(
-        scene, cloud, args.labels, args.format, args.out, args.res, args.fov, args.image_format, args.overwrite, about
+        scene, cloud, cfg.labels, cfg.format, cfg.out, cfg.res, cfg.fov, cfg.image_format, cfg.overwrite, about
     )
     meta = json.loads((out / "export.json").read_text())
     print(
-        f"{scene.name} / {args.source}: {len(cloud)} points, {args.labels} views {args.res}x{args.res} "
-        f"+ {len(meta['anchors'])} scale anchors ({args.format}) -> {out}"
+        f"{scene.name} / {src.source}: {len(cloud)} points, {cfg.labels} views {cfg.res}x{cfg.res} "
+        f"+ {len(meta['anchors'])} scale anchors ({cfg.format}) -> {out}"
     )
     for k, c in meta["commands"].items():
         print(f"  {k} (scene scale {meta['consumer_scales'][k]:.4f}): {c}")

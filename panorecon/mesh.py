@@ -11,14 +11,12 @@ pymeshlab is the ``mesh`` extra.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .cli_types import finite_vector, float_in, in_path, int_in, out_file
 from .geometry import PointCloud
 from .io import PanoreconInputError, atomic_write
 
@@ -114,29 +112,30 @@ def _report_of(cloud: Path) -> dict:
     return json.loads(rep.read_text()) if rep != cloud and rep.is_file() else {}
 
 
-def cmd_mesh(args) -> int:
-    cloud = Path(args.cloud)
+def cmd_mesh(cfg) -> int:
+    """``panorecon mesh`` (a ``configs.MeshConfig``): the Poisson mesh of a cloud, and its Chamfer to a true mesh."""
+    cloud = Path(cfg.cloud)
     try:
         pc = PointCloud.load_ply(cloud)
     except (FileNotFoundError, ValueError) as e:
         raise PanoreconInputError(str(e)) from None
     if len(pc) < MIN_POINTS:
         raise PanoreconInputError(f"{cloud}: {len(pc)} points; a surface needs at least {MIN_POINTS}")
-    centre = args.centre
+    centre = cfg.centre
     report = _report_of(cloud)
-    name = args.scene or report.get("scene")
+    name = cfg.scene or report.get("scene")
     # the source's protocol: a non-metric teacher's cloud is compared after its median scale (sources/run.py)
-    scale = float(report.get("points", {}).get("scale_applied", 1.0)) if not args.scene else 1.0
+    scale = float(report.get("points", {}).get("scale_applied", 1.0)) if not cfg.scene else 1.0
     scene = None
     if name:  # before the mesh is made or written: a bad --scene fails first
         from .scenes import load_scene
 
         scene = load_scene(name, 64)
     t = time.perf_counter()
-    v, f, c = poisson_mesh(pc, args.depth, args.trim, centre)
+    v, f, c = poisson_mesh(pc, cfg.depth, cfg.trim, centre)
     seconds = time.perf_counter() - t
-    save_mesh(args.out, v, f, c)
-    line = f"{cloud}: {len(pc)} points -> {len(v)} vertices, {len(f)} triangles in {seconds:.1f} s -> {args.out}"
+    save_mesh(cfg.out, v, f, c)
+    line = f"{cloud}: {len(pc)} points -> {len(v)} vertices, {len(f)} triangles in {seconds:.1f} s -> {cfg.out}"
     if scene is not None:
         if scene.world is None:
             line += f"; Chamfer n/a: scene {name!r} has no true mesh"
@@ -151,29 +150,3 @@ def cmd_mesh(args) -> int:
             )
     print(line)
     return 0
-
-
-def add_mesh_parser(sub: argparse._SubParsersAction) -> None:
-    m = sub.add_parser("mesh", help="a triangle mesh from a point cloud (screened Poisson, pymeshlab)")
-    m.add_argument("cloud", type=in_path, help="a point-cloud .ply (e.g. a run's fibonacci_cloud.ply)")
-    m.add_argument("--out", required=True, type=out_file, help="output mesh .ply")
-    m.add_argument("--depth", type=int_in(4, 16, "Poisson depth"), default=9, help="Poisson octree depth (default 9)")
-    m.add_argument(
-        "--trim",
-        type=float_in(0.0, 0.99, "trim quantile"),
-        default=0.1,
-        help="drop vertices below this density quantile (default 0.1)",
-    )
-    m.add_argument(
-        "--centre",
-        default=(0.0, 0.0, 0.0),
-        type=finite_vector(3, "centre"),
-        help="panorama centre x,y,z in metres; normals face it",
-    )
-    m.add_argument(
-        "--scene",
-        default=None,
-        help="synthetic scene for the Chamfer to its true mesh, "
-        "cloud taken as metric (default: the scene and scale in the cloud's *_report.json)",
-    )
-    m.set_defaults(fn=cmd_mesh)

@@ -8,7 +8,6 @@ perspective views of the panorama (Fibonacci / icosahedral ... layout, from ``*_
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from dataclasses import dataclass, field
@@ -16,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_types import in_path, int_in
 from .io import PanoreconInputError
 
 COLOURS = {"source": (230, 120, 20), "pseudo-label": (40, 110, 230), "held-out": (220, 30, 60)}
@@ -154,21 +152,14 @@ def serve(path: str | Path, port: int = 8080, host: str = "0.0.0.0", point_size:
     return server
 
 
-def cmd_view(args) -> int:
-    server = serve(args.path, args.port, args.host)
-    host = "localhost" if args.host in ("0.0.0.0", "::") else args.host
-    print(f"panorecon view: {args.path} at http://{host}:{server.get_port()} (Ctrl-C to stop)", flush=True)
+def cmd_view(cfg) -> int:
+    """``panorecon view`` (a ``configs.ViewConfig``): serve until Ctrl-C."""
+    server = serve(cfg.path, cfg.port, cfg.host)
+    host = "localhost" if cfg.host in ("0.0.0.0", "::") else cfg.host
+    print(f"panorecon view: {cfg.path} at http://{host}:{server.get_port()} (Ctrl-C to stop)", flush=True)
     try:
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
         server.stop()
     return 0
-
-
-def add_view_parser(sub: argparse._SubParsersAction) -> None:
-    v = sub.add_parser("view", help="look at Gaussians, clouds and cameras in the browser (viser)")
-    v.add_argument("path", type=in_path, help="a 3DGS point_cloud.ply, any point-cloud .ply, or a run folder")
-    v.add_argument("--port", type=int_in(1, 65535, "port"), default=8080, help="HTTP port (default 8080)")
-    v.add_argument("--host", default="0.0.0.0", help="interface to listen on")
-    v.set_defaults(fn=cmd_view)

@@ -104,20 +104,20 @@ def test_bad_options_are_one_line_exit_2_and_write_nothing(tmp_path, monkeypatch
 
 
 def test_os_errors_of_the_users_paths_are_one_line(tmp_path, capsys, monkeypatch):
-    import panorecon.cli as cli
+    import panorecon.commands as commands
 
-    def denied(args):
+    def denied(config):
         raise PermissionError(13, "Permission denied", str(tmp_path / "x.ply"))
 
-    monkeypatch.setattr(cli, "cmd_sources_list", denied)
+    monkeypatch.setattr(commands, "sources_list", denied)
     assert main(["sources", "list"]) == 2
     err = capsys.readouterr().err
     assert err == f"panorecon: error: {tmp_path / 'x.ply'}: Permission denied\n"
 
-    def bug(args):
+    def bug(config):
         raise OSError(5, "Input/output error")  # not a user mistake: left as a traceback
 
-    monkeypatch.setattr(cli, "cmd_sources_list", bug)
+    monkeypatch.setattr(commands, "sources_list", bug)
     with pytest.raises(OSError):
         main(["sources", "list"])
 

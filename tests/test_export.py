@@ -3,7 +3,6 @@ positions; and every consumer's scene-scale rule, re-implemented here from its o
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import imageio.v3 as iio
@@ -12,7 +11,7 @@ import pycolmap
 import pytest
 import torch
 
-from panorecon.export import add_export_parser, export_scene, viewmat_from_c2w_opengl
+from panorecon.export import export_scene, viewmat_from_c2w_opengl
 from panorecon.geometry import PointCloud
 from panorecon.io import PanoreconInputError
 from panorecon.scenes.synthetic import build_scene
@@ -81,27 +80,29 @@ def test_refuses_non_empty_out(scene, cloud, tmp_path):
 
 
 def test_export_command(tmp_path, capsys):
-    parser = argparse.ArgumentParser()
-    add_export_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(
-        [
-            "export",
-            "bedroom",
-            "--source",
-            "random",
-            "--format",
-            "nerfstudio",
-            "--width",
-            "128",
-            "--labels",
-            "4",
-            "--res",
-            "32",
-            "--out",
-            str(tmp_path / "e"),
-        ]
+    from panorecon.cli import main
+
+    assert (
+        main(
+            [
+                "export",
+                "bedroom",
+                "--source",
+                "random",
+                "--format",
+                "nerfstudio",
+                "--width",
+                "128",
+                "--labels",
+                "4",
+                "--res",
+                "32",
+                "--out",
+                str(tmp_path / "e"),
+            ]
+        )
+        == 0
     )
-    assert args.fn(args) == 0
     out = capsys.readouterr().out
     assert "100000 points" in out and "2 scale anchors" in out
     assert len(json.loads((tmp_path / "e" / "transforms.json").read_text())["frames"]) == 4 + 2

@@ -13,12 +13,14 @@ values and gradients.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
+from dataclasses import dataclass
 
 import torch
 
+from .. import checks as C
+from ..checks import opt
 from ..evaluation.environment import emit, environment
 from ..io import peak_rss_mb
 
@@ -130,13 +132,18 @@ def measure(quick: bool = True, repeats: int = 20) -> dict:
     return {"size": size, "gaussians": n, "repeats": repeats, **rows}
 
 
+@dataclass(frozen=True)
+class BenchFusedConfig:
+    quick: bool = opt(False, "128² and 20k Gaussians (CI)")
+    repeats: int = opt(20, "timed runs per kernel", check=C.int_in(1, None, "repeat count"))
+    out: str | None = opt(None, "also write the result JSON here", role="out-file")
+
+
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="128² and 20k Gaussians (CI)")
-    ap.add_argument("--repeats", type=int, default=20)
-    ap.add_argument("--out", default=None)
-    args = ap.parse_args(argv)
-    result = measure(args.quick, args.repeats)
+    from ..cli import parse_config
+
+    cfg = parse_config(BenchFusedConfig, argv, __doc__.splitlines()[0])
+    result = measure(cfg.quick, cfg.repeats)
     return emit(
         {
             "benchmark": "fused SSIM, SH and loss terms against their PyTorch references",
@@ -145,7 +152,7 @@ def main(argv=None) -> dict:
             **result,
             "peak_rss_mb": peak_rss_mb(),
         },
-        args.out,
+        cfg.out,
     )
 
 

@@ -12,14 +12,16 @@ and the speed ratio reference / method.
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from .. import checks as C
+from ..checks import opt
 from ..evaluation.environment import emit, environment, in_fresh_process
 
 
@@ -65,15 +67,20 @@ def one_run(method: str, height: int, view_size: int, seed: int) -> dict:
     return {"seconds": seconds, "abs_rel": m["abs_rel"], "iterations": its}
 
 
+@dataclass(frozen=True)
+class BenchFusionConfig:
+    quick: bool = opt(False, "one small size (CI)")
+    repeats: int | None = opt(None, "fresh-process runs per size (default 3)", check=C.int_in(1, None, "repeat count"))
+    out: str | None = opt(None, "also write the result JSON here", role="out-file")
+
+
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="one small size (CI)")
-    ap.add_argument("--repeats", type=int, default=None)
-    ap.add_argument("--out", default=None)
-    args = ap.parse_args(argv)
+    from ..cli import parse_config
+
+    cfg = parse_config(BenchFusionConfig, argv, __doc__.splitlines()[0])
     # (ERP height, view size); quick: 512 x 256, large enough that the ratio is not dominated by fixed costs
-    sizes = [(256, 128)] if args.quick else [(480, 512), (1024, 512)]
-    repeats = args.repeats or 3
+    sizes = [(256, 128)] if cfg.quick else [(480, 512), (1024, 512)]
+    repeats = cfg.repeats or 3
     results = []
     for height, view_size in sizes:
         row = {"erp": f"{2 * height}x{height}", "view_size": view_size, "repeats": repeats}
@@ -88,7 +95,7 @@ def main(argv=None) -> dict:
         row["speedup_vs_reference"] = row["moge-reference"]["median_seconds"] / row["fibonacci-lsq"]["median_seconds"]
         results.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
-    return emit({"benchmark": "fusion", **environment(), "results": results}, args.out)
+    return emit({"benchmark": "fusion", **environment(), "results": results}, cfg.out)
 
 
 if __name__ == "__main__":

@@ -21,16 +21,18 @@ benchmark rolls its input and output accordingly.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .. import checks as C
+from ..checks import opt
 from ..evaluation.environment import emit, environment, in_fresh_process
 
 CONDITIONS = ("exact", "scale", "scale+noise")
@@ -224,27 +226,29 @@ def run(scene: str, widths, conditions, seed: int, variants=(), log=sys.stderr, 
     return rows
 
 
-def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="bedroom")
-    ap.add_argument("--widths", type=int, nargs="+", default=[1024, 2048])
-    ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument(
-        "--variants",
-        nargs="*",
-        default=[],
-        choices=sorted(VARIANTS),
-        help="also fuse_views with one setting changed (scale+noise): the levers measured alone",
+@dataclass(frozen=True)
+class BenchFusionMogeConfig:
+    scene: str = opt("bedroom", "scene name (see `panorecon scenes list`)")
+    widths: tuple[int, ...] = opt((1024, 2048), "ERP widths", check=C.ERP_WIDTH, many=True)
+    conditions: tuple[str, ...] = opt(tuple(CONDITIONS), "input conditions", choices=tuple(CONDITIONS), many=True)
+    seed: int = opt(0, "random seed", check=C.SEED)
+    variants: tuple[str, ...] = opt(
+        (),
+        "also fuse_views with one setting changed (scale+noise): the levers measured alone",
+        choices=tuple(sorted(VARIANTS)),
+        many=True,
     )
-    ap.add_argument("--repeats", type=int, default=1, help="fresh-process runs per row (seconds: their median)")
-    ap.add_argument("--out", default=None)
-    args = ap.parse_args(argv)
-    if args.repeats < 1:
-        ap.error(f"--repeats {args.repeats}: expected >= 1")
+    repeats: int = opt(1, "fresh-process runs per row (seconds: their median)", check=C.int_in(1, None, "repeat count"))
+    out: str | None = opt(None, "also write the result JSON here", role="out-file")
+
+
+def main(argv=None) -> dict:
+    from ..cli import parse_config
+
+    cfg = parse_config(BenchFusionMogeConfig, argv, __doc__.splitlines()[0])
     with open("/proc/loadavg") as f:
         load_before = f.read().split()[:3]
-    rows = run(args.scene, args.widths, args.conditions, args.seed, args.variants, repeats=args.repeats)
+    rows = run(cfg.scene, cfg.widths, cfg.conditions, cfg.seed, cfg.variants, repeats=cfg.repeats)
     from importlib.metadata import version
 
     env = environment()
@@ -256,18 +260,18 @@ def main(argv=None) -> dict:
     return emit(
         {
             "benchmark": "fusion-vs-moge-equal-inputs",
-            "scene": args.scene,
+            "scene": cfg.scene,
             "view_size": VIEW_SIZE,
             "noise": NOISE,
-            "seed": args.seed,
-            "repeats": args.repeats,
+            "seed": cfg.seed,
+            "repeats": cfg.repeats,
             "loadavg_before": load_before,
             "loadavg_after": load,
             "thread_env": threads,
             **env,
             "results": rows,
         },
-        args.out,
+        cfg.out,
     )
 
 

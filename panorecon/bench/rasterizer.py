@@ -15,14 +15,16 @@ same Gaussians (forward + backward): the C++ kernel, which evaluates only the pa
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 
 import torch
 
+from .. import checks as C
+from ..checks import opt
 from ..evaluation.environment import emit, environment
 from ..io import peak_rss_mb
 
@@ -178,26 +180,31 @@ def max_difference(size: int, n: int) -> dict:
     }
 
 
+@dataclass(frozen=True)
+class BenchRasterizerConfig:
+    quick: bool = opt(False, "one size, 128² and 10k Gaussians (CI)")
+    repeats: int = opt(3, "timed runs per size and backend", check=C.int_in(1, None, "repeat count"))
+    stages: bool = opt(False, "also the cpu backend's time per stage at 256²/100k")
+    out: str | None = opt(None, "also write the result JSON here", role="out-file")
+
+
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--stages", action="store_true", help="also the cpu backend's time per stage at 256²/100k")
-    ap.add_argument("--out", default=None)
-    args = ap.parse_args(argv)
-    grid = [(128, 10_000)] if args.quick else [(s, n) for s in (128, 256, 512) for n in (10_000, 100_000)]
+    from ..cli import parse_config
+
+    cfg = parse_config(BenchRasterizerConfig, argv, __doc__.splitlines()[0])
+    grid = [(128, 10_000)] if cfg.quick else [(s, n) for s in (128, 256, 512) for n in (10_000, 100_000)]
     fwd_bwd("cpu", 32, 100)  # build / load the extension outside the timings
     rows = []
     for size, n in grid:
         row = {"size": size, "gaussians": n}
         for backend in ("cpu", "torch"):
             first = fwd_bwd(backend, size, n)
-            reps = [first] + ([fwd_bwd(backend, size, n) for _ in range(args.repeats - 1)] if first < 60 else [])
+            reps = [first] + ([fwd_bwd(backend, size, n) for _ in range(cfg.repeats - 1)] if first < 60 else [])
             row[backend] = {"median_seconds": statistics.median(reps), "runs": len(reps)}
         row["speedup_cpu_vs_torch"] = row["torch"]["median_seconds"] / row["cpu"]["median_seconds"]
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
-    extra = {"cpu_stages": cpu_stages()} if args.stages else {}
+    extra = {"cpu_stages": cpu_stages()} if cfg.stages else {}
     return emit(
         {
             "benchmark": "rasterizer forward+backward",
@@ -208,7 +215,7 @@ def main(argv=None) -> dict:
             "peak_rss_mb": peak_rss_mb(),
             "results": rows,
         },
-        args.out,
+        cfg.out,
     )
 
 

@@ -36,13 +36,15 @@ compares and selects as 1), so that the counts are stated rather than measured b
 
 from __future__ import annotations
 
-import argparse
 import math
 import statistics
 import time
+from dataclasses import dataclass
 
 import torch
 
+from .. import checks as C
+from ..checks import opt
 from ..evaluation.environment import emit, environment
 from ..io import peak_rss_mb
 
@@ -292,23 +294,28 @@ def roofline(
     }
 
 
-def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--gaussians", type=int, default=200_000)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's own)")
-    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall")
-    ap.add_argument(
-        "--sh-degree", type=int, choices=sorted(FLOPS["sh"]), default=None, help="default: the trainer's (module doc)"
+@dataclass(frozen=True)
+class BenchRooflineConfig:
+    size: int = opt(256, "view size in pixels", check=C.LABEL_RES)
+    gaussians: int = opt(200_000, "Gaussians in the model", check=C.int_in(1, None, "Gaussian count"))
+    repeats: int = opt(5, "timed steps", check=C.int_in(1, None, "repeat count"))
+    threads: int | None = opt(None, "torch threads (default: torch's own)", check=C.int_in(1, 1024, "thread count"))
+    clock: str = opt("wall", "wall-clock or process CPU time", choices=("wall", "cpu"))
+    sh_degree: int | None = opt(
+        None, "SH degree (default: the trainer's; module doc)", choices=tuple(sorted(FLOPS["sh"]))
     )
-    ap.add_argument("--out", default=None)
-    args = ap.parse_args(argv)
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    r = roofline(args.size, args.gaussians, args.repeats, args.clock, args.sh_degree)
+    out: str | None = opt(None, "also write the result JSON here", role="out-file")
+
+
+def main(argv=None) -> dict:
+    from ..cli import parse_config
+
+    cfg = parse_config(BenchRooflineConfig, argv, __doc__.splitlines()[0])
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    r = roofline(cfg.size, cfg.gaussians, cfg.repeats, cfg.clock, cfg.sh_degree)
     return emit(
-        {"benchmark": "cpu training step roofline", **environment(), **r, "peak_rss_mb": peak_rss_mb()}, args.out
+        {"benchmark": "cpu training step roofline", **environment(), **r, "peak_rss_mb": peak_rss_mb()}, cfg.out
     )
 
 

@@ -31,8 +31,10 @@ seeds. ``reference``: keys and values (as in [defaults]; ``label`` is the row's 
 one table row; results.md compares every other row with it on the same scene and seed (``evaluation/stats.py``).
 Without ``seeds`` a row's seed is its ``seed`` setting (default 0).
 
-The file is checked against a typed schema before anything runs: unknown tables and keys are errors that
-name the closest valid one, every value has its key's type and range, and ``resolve_names`` checks every
+The file is checked before anything runs: unknown tables and keys are errors that name the closest valid one,
+every row value is checked by the declaration of the config field of its name (``row_settings``: the same
+declarations make the CLI's options), each row's training settings build a ``TrainConfig``, and
+``resolve_names`` checks every
 scene, source and teacher a row names (``run_suite`` calls it before the first stage).
 """
 
@@ -43,11 +45,11 @@ import difflib
 import fnmatch
 import itertools
 import os
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import cli_types as T
+from .. import checks as C
+from ..checks import Setting, problem, settings
 from ..io import PanoreconInputError
 from ..pipeline import Row
 
@@ -70,19 +72,6 @@ TOP_KEYS = {
 }
 PAPER_KEYS = {"caption": str, "columns": list, "rows": list}
 PAPER_ROW_KEYS = {"label": str, "values": list, "match": dict}
-# ranges of row values (ints not named here must be >= 0, floats finite and >= 0)
-RANGES = {
-    "width": T.ERP_WIDTH,
-    "views": T.VIEWS,
-    "iters": T.ITERS,
-    "res": T.LABEL_RES,
-    "labels": T.LABELS,
-    "seed": T.SEED,
-    "sh_degree": T.int_in(0, 3, "SH degree"),
-    "sh_increase_every": T.int_in(0, None),
-    "fov_deg": T.float_in(1.0, 170.0, "field of view"),
-    "depth_scale": T.float_in(1e-9, 1e9, "depth scale"),
-}
 
 
 @dataclass
@@ -97,38 +86,18 @@ class Suite:
     reference: str | None = None  # the label of the reference row
 
 
-def _train_fields() -> set[str]:
+def row_settings() -> dict[str, Setting]:
+    """Every key a row may set -> its declaration: the scene and depth (``configs.SceneArgs``), the point source
+    (``configs.SourceArgs``), every ``TrainConfig`` field, and ``train`` / ``label``; the CLI's options are made
+    from the same declarations, so a key and its option share name, default and check."""
+    from ..configs import SceneArgs, SourceArgs
     from ..splat.trainer import TrainConfig
 
-    return {f.name for f in dataclasses.fields(TrainConfig)}
-
-
-def row_schema() -> dict[str, type]:
-    """Every key a row may set -> its type (TrainConfig's fields with their annotated types)."""
-    from ..splat.trainer import TrainConfig
-
-    hints = typing.get_type_hints(TrainConfig)
-    return {
-        "scene": str,
-        "width": int,
-        "source": str,
-        "teacher": str,
-        "views": int,
-        "train": bool,
-        "label": str,
-        "depth": str,
-        "depth_scale": float,
-        "depth_kind": str,
-        **{f.name: hints[f.name] for f in dataclasses.fields(TrainConfig)},
+    own = {
+        "train": Setting("train", True, "bool", {"help": "false: the row's point cloud only, no training"}),
+        "label": Setting("label", None, "str | None", {"help": "the row's table label"}),
     }
-
-
-def _choices() -> dict[str, tuple[str, ...]]:
-    from ..geometry.layouts import LAYOUT_NAMES
-    from ..splat.rasterize import BACKENDS
-    from ..splat.strategy import STRATEGIES
-
-    return {"strategy": tuple(STRATEGIES), "backend": BACKENDS, "layout": LAYOUT_NAMES, "depth_kind": ("distance", "z")}
+    return {s.name: s for cls in (SceneArgs, SourceArgs, TrainConfig) for s in settings(cls)} | own
 
 
 def _unknown(path: Path, where: str, key: str, valid) -> PanoreconInputError:
@@ -148,37 +117,14 @@ def _type_name(t) -> str:
     }[t]
 
 
-def check_value(path: Path, where: str, key: str, value, schema: dict, choices: dict) -> None:
-    """Raise PanoreconInputError unless ``value`` has ``key``'s type and range."""
-    want = schema[key]
-    if typing.get_origin(want) is tuple:  # a list of steps (TrainConfig.eval_at)
-        if not (isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
-            raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r}: expected a list of integers")
-        if any(v < 1 for v in value):
-            raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r}: expected steps >= 1")
-        return
-    ok = isinstance(value, want) and not (want in (int, float) and isinstance(value, bool))
-    if want is float and isinstance(value, int) and not isinstance(value, bool):
-        ok = True
-    if not ok:
-        raise PanoreconInputError(
-            f"suite {path}: {where} {key} = {value!r} is {type(value).__name__}; expected {_type_name(want)}"
-        )
-    problem = None
-    if key in choices and value not in choices[key]:
-        problem = f"expected one of {', '.join(choices[key])}"
-    elif key in RANGES:
-        try:
-            RANGES[key](str(value))
-        except Exception as e:  # argparse.ArgumentTypeError: says the range
-            problem = str(e)
-    elif want in (int, float) and not (value >= 0 and value == value and abs(value) != float("inf")):
-        problem = "expected a finite value >= 0"
-    if problem:
-        raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r}: {problem}")
+def check_value(path: Path, where: str, key: str, value, schema: dict[str, Setting]) -> None:
+    """Raise PanoreconInputError unless ``value`` has ``key``'s type and passes its check (``checks.problem``)."""
+    why = problem(schema[key], value)
+    if why:
+        raise PanoreconInputError(f"suite {path}: {where} {key} = {value!r}{why}")
 
 
-def _check_table(path: Path, where: str, table: dict, schema: dict, choices: dict, listed: bool = False) -> None:
+def _check_table(path: Path, where: str, table: dict, schema: dict, listed: bool = False) -> None:
     for k, v in table.items():
         if k not in schema:
             raise _unknown(path, where, k, schema)
@@ -186,9 +132,9 @@ def _check_table(path: Path, where: str, table: dict, schema: dict, choices: dic
             if not isinstance(v, list) or not v:
                 raise PanoreconInputError(f"suite {path}: [grid] {k} must be a non-empty list, got {v!r}")
             for item in v:
-                check_value(path, where, k, item, schema, choices)
+                check_value(path, where, k, item, schema)
         else:
-            check_value(path, where, k, v, schema, choices)
+            check_value(path, where, k, v, schema)
 
 
 def _check_top(path: Path, data: dict) -> None:
@@ -228,8 +174,8 @@ def _check_seeds(path: Path, data: dict, tables: list[dict]) -> list[int] | None
         raise PanoreconInputError(f"suite {path}: seeds = {seeds!r}: expected a non-empty list of integers")
     for x in seeds:
         try:
-            T.SEED(str(x))
-        except Exception as e:  # argparse.ArgumentTypeError: says the range
+            C.SEED.check(x)
+        except C.CheckError as e:
             raise PanoreconInputError(f"suite {path}: seeds: {e}") from None
     if len(set(seeds)) != len(seeds):
         raise PanoreconInputError(f"suite {path}: seeds = {seeds!r} repeats a seed")
@@ -238,7 +184,7 @@ def _check_seeds(path: Path, data: dict, tables: list[dict]) -> list[int] | None
     return list(seeds)
 
 
-def _check_reference(path: Path, data: dict, schema: dict, choices: dict) -> dict | None:
+def _check_reference(path: Path, data: dict, schema: dict) -> dict | None:
     ref = data.get("reference")
     if ref is None:
         return None
@@ -249,7 +195,7 @@ def _check_reference(path: Path, data: dict, schema: dict, choices: dict) -> dic
         if k not in allowed:
             hint = "; the reference is a table row, compared on every scene and seed" if k in schema else ""
             raise PanoreconInputError(str(_unknown(path, "reference", k, allowed)) + hint)
-        check_value(path, "reference", k, v, schema, choices)
+        check_value(path, "reference", k, v, schema)
     return ref
 
 
@@ -303,12 +249,14 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None) -> 
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise PanoreconInputError(f"suite {path}: not valid TOML ({e})") from None
     _check_top(path, data)
-    schema, choices = row_schema(), _choices()
-    train_fields = _train_fields()
+    from ..splat.trainer import TrainConfig
+
+    schema = row_settings()
+    train_fields = {f.name for f in dataclasses.fields(TrainConfig)}
     defaults, grid, variants = data.get("defaults", {}), data.get("grid", {}), data.get("variants", [{}])
-    _check_table(path, "[defaults]", defaults, schema, choices)
+    _check_table(path, "[defaults]", defaults, schema)
     if overrides:
-        _check_table(path, "--set", overrides, schema, choices)
+        _check_table(path, "--set", overrides, schema)
         for k in overrides:
             if k in grid or any(k in v for v in variants):
                 raise PanoreconInputError(
@@ -316,15 +264,15 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None) -> 
                     "only [defaults] can be overridden"
                 )
         defaults = {**defaults, **overrides}
-    _check_table(path, "[grid]", grid, schema, choices, listed=True)
+    _check_table(path, "[grid]", grid, schema, listed=True)
     for i, v in enumerate(variants):
-        _check_table(path, f"[[variants]] {i + 1}", v, schema, choices)
+        _check_table(path, f"[[variants]] {i + 1}", v, schema)
     row_columns = list(data.get("rows", ["source"]))
     for c in row_columns:
         if c not in schema:
             raise _unknown(path, "rows", c, schema)
     seeds = _check_seeds(path, data, [defaults, grid, *variants])
-    reference = _check_reference(path, data, schema, choices)
+    reference = _check_reference(path, data, schema)
     rows, reference_labels = [], []
     for variant in variants:
         for combo in itertools.product(*grid.values()):
@@ -334,6 +282,10 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None) -> 
                     raise PanoreconInputError(f"suite {path}: no {need!r} in [defaults], [grid] or [[variants]]")
             train_cfg = {k: v for k, v in spec.items() if k in train_fields}
             label = spec.get("label") or " / ".join(str(spec.get(c, "")) for c in row_columns)
+            try:  # the settings together (each key alone is checked above)
+                TrainConfig(**train_cfg)
+            except ValueError as e:
+                raise PanoreconInputError(f"suite {path}: row {label!r}: {e}") from None
             named = {**spec, "label": label}  # reference = { label = "..." } names a row by its table label
             if reference and all(named.get(k) == v for k, v in reference.items()) and label not in reference_labels:
                 reference_labels.append(label)

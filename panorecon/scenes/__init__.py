@@ -1,7 +1,7 @@
 """Scenes with ground truth (procedural synthetic) and real panoramas, behind one ``Scene`` type."""
 
 from .base import ErpRender, Scene, ViewRender, World
-from .registry import DEFAULT_SCENE, SceneSpec, list_scenes, load_scene, register_scene, scene_from_args
+from .registry import DEFAULT_SCENE, SceneSpec, list_scenes, load_scene, register_scene
 
 __all__ = [
     "Scene",
@@ -13,5 +13,4 @@ __all__ = [
     "list_scenes",
     "load_scene",
     "register_scene",
-    "scene_from_args",
 ]

@@ -96,17 +96,3 @@ def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
         "(stanford2d3d:, structured3d:, matterport3d:, panoramas:), the path of an equirectangular image, "
         "or a folder written by `panorecon render`"
     )
-
-
-def scene_from_args(args) -> Scene:
-    """``load_scene`` from a command's parsed options: scene, width and the --depth options (absent: none)."""
-    depth = None
-    if getattr(args, "depth", None):
-        from .real import DepthSpec
-
-        depth = DepthSpec(
-            Path(args.depth), getattr(args, "depth_scale", None), getattr(args, "depth_kind", None) or "distance"
-        )
-    elif getattr(args, "depth_scale", None) is not None or getattr(args, "depth_kind", None) is not None:
-        raise PanoreconInputError("--depth-scale/--depth-kind without --depth: expected a depth file to read")
-    return load_scene(args.scene, getattr(args, "width", None), depth)

@@ -9,14 +9,16 @@ import logging
 import math
 import statistics
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .. import checks as C
 from .. import interrupts
+from ..checks import opt
 from ..device import device_record, reset_peak_memory, resolve_device, synchronize
 from ..geometry import PointCloud
 from ..io import peak_rss_mb, write_image, write_json
@@ -41,97 +43,161 @@ from .labels import (
 from .losses import ssim, total_loss
 from .model import PARAM_NAMES, GaussianModel
 from .ply import save_ply
-from .rasterize import rasterize, resolve_backend
+from .rasterize import BACKENDS, rasterize, resolve_backend
 from .strategy import STRATEGIES, edit_parameters
 
 log = logging.getLogger("panorecon.train")
 
 
-def _f(default, help: str):
-    return field(default=default, metadata={"help": help})
-
-
-# The smallest half size that coarse steps render at. Measured (docs/benchmarks.md, issue 30): at 256 px labels
-# (the target command) 0.2 of the steps at 128 px, with the SH change beside them, end at 33.04 dB held-out and
-# reach 32.35 dB at 26.5-28.4 s, against 33.02 dB and 58.1 s before both (c9ed316); at 64 px labels (the quick
-# suite) 0.2 of the steps at 32 px cost 0.09 dB held-out on three of six rows.
+# The smallest half size that coarse steps render at: labels under 2 x COARSE_MIN_SIZE px train at full size
+# throughout (at smaller sizes a coarse step saves little and the half-size targets lose detail; measured effects:
+# docs/benchmarks.md).
 COARSE_MIN_SIZE = 128
 
 
-@dataclass
+def _layouts() -> tuple[str, ...]:
+    from ..geometry.layouts import LAYOUT_NAMES
+
+    return LAYOUT_NAMES
+
+
+@dataclass(frozen=True)
 class TrainConfig:
-    iters: int = _f(3000, "optimisation steps (one pseudo-label view per step)")
-    res: int = _f(128, "pseudo-label and held-out view size in pixels (square)")
-    labels: int = _f(240, "number of dense pseudo-label views (Table 5: 120-360)")
-    fov_deg: float = _f(60.0, "field of view of the label and held-out views (degrees)")
-    layout: str = _f("fibonacci", "layout of the pseudo-label directions")
-    backend: str = _f("auto", "rasterizer backend: auto, cpu, torch or gsplat (CUDA)")
-    sh_degree: int = _f(3, "SH degree of the model and its PLY (the 3DGS layout); bands above the active one stay 0")
-    sh_increase_every: int = _f(
+    """The trainer's settings, checked when built (one ValueError naming the field and what was expected)."""
+
+    iters: int = opt(3000, "optimisation steps (one pseudo-label view per step)", check=C.ITERS)
+    res: int = opt(128, "pseudo-label and held-out view size in pixels (square)", check=C.LABEL_RES)
+    labels: int = opt(240, "number of dense pseudo-label views (Table 5: 120-360)", check=C.LABELS)
+    fov_deg: float = opt(60.0, "field of view of the label and held-out views (degrees)", check=C.FOV_DEG)
+    layout: str = opt("fibonacci", "layout of the pseudo-label directions", choices=_layouts)
+    backend: str = opt(
+        "auto",
+        "rasterizer: auto (gsplat on CUDA, cpu on the CPU), torch (the reference), cpu (C++), gsplat (CUDA)",
+        choices=BACKENDS,
+    )
+    sh_degree: int = opt(
+        3,
+        "SH degree of the model and its PLY (the 3DGS layout); bands above the active one stay 0",
+        check=C.int_in(0, 3, "SH degree"),
+    )
+    sh_increase_every: int = opt(
         0,
         "steps between increases of the active SH degree, up to sh_degree (3DGS: 1000); 0: it stays 0. Every "
         "pseudo-label camera sits at the panorama centre, so all of them see a Gaussian along one direction: its "
         "higher bands add the same colour to every label as its DC band can, and only change what other positions "
-        "see (docs/benchmarks.md: on the target command it ends 0.02 dB higher in 24-28 % less training time)",
+        "see (measured effect: docs/benchmarks.md)",
+        check=C.COUNT,
     )
-    coarse_until: float = _f(
+    coarse_until: float = opt(
         0.2,
         "fraction of iters rendered at half the label size (res // 2, targets and teacher depth area-averaged, K "
         "scaled): coarse to fine, each such step about a third of a full one; 0: every step at full size (labels "
         "under 2 x COARSE_MIN_SIZE = 256 px always are)",
+        check=C.FRACTION,
     )
-    strategy: str = _f("default", "densify/prune strategy: default (3DGS) or adaptive (§2.5 contribution pruning)")
-    densify_from: int = _f(
+    strategy: str = opt(
+        "default", "densify/prune: default (3DGS) or adaptive (§2.5 contribution pruning)", choices=tuple(STRATEGIES)
+    )
+    densify_from: int = opt(
         100,
-        "step of the first clone/split (then every 100 steps until densify_until; 3DGS: 500 of 30,000). On the "
-        "target command of docs/benchmarks.md, from step 500 held-out PSNR dips for 300 steps while the model grows "
-        "at full size; from step 100 it grows during the cheap coarse steps (32.35 dB at step 600 instead of 900)",
+        "step of the first clone/split (then every 100 steps until densify_until; 3DGS: 500 of 30,000). An early "
+        "start grows the model during the cheap coarse steps; a late one grows it at full size (measured effect: "
+        "docs/benchmarks.md)",
+        check=C.STEP,
     )
-    densify_until: float = _f(0.5, "fraction of iters after which no Gaussian is cloned or split (0: never densify)")
-    grad_threshold: float = _f(2e-4, "mean NDC 2D-mean gradient above which a Gaussian is cloned or split")
-    w_l1: float = _f(0.8, "weight of L1 (eq. 9)")
-    w_ssim: float = _f(0.2, "weight of 1 - SSIM (eq. 12)")
-    w_depth: float = _f(0.05, "weight of the Pearson depth term (eq. 10-11)")
-    lr_means: float = _f(1.6e-4, "initial means learning rate, times the scene extent")
-    lr_means_final: float = _f(1.6e-6, "final means learning rate (exponential decay), times the extent")
-    lr_quats: float = _f(1e-3, "quaternion learning rate")
-    lr_scales: float = _f(5e-3, "log-scale learning rate")
-    lr_opacities: float = _f(5e-2, "logit-opacity learning rate")
-    lr_sh0: float = _f(2.5e-3, "DC colour learning rate")
-    lr_shN: float = _f(2.5e-3 / 20, "higher SH bands learning rate")
-    checkpoint_every: int = _f(500, "steps between checkpoints (out_dir/ckpt.pt)")
-    heldout: int = _f(8, "held-out true views (synthetic scenes; dataset scenes with other posed panoramas)")
-    history_every: int = _f(100, "steps between history samples (training-view and held-out PSNR)")
-    eval_at: tuple[int, ...] = _f(
+    densify_until: float = opt(
+        0.5, "fraction of iters after which no Gaussian is cloned or split (0: never densify)", check=C.FRACTION
+    )
+    grad_threshold: float = opt(
+        2e-4, "mean NDC 2D-mean gradient above which a Gaussian is cloned or split", check=C.POSITIVE_FLOAT
+    )
+    w_l1: float = opt(0.8, "weight of L1 (eq. 9)", check=C.LOSS_WEIGHT)
+    w_ssim: float = opt(0.2, "weight of 1 - SSIM (eq. 12)", check=C.LOSS_WEIGHT)
+    w_depth: float = opt(
+        0.05, "weight of the Pearson depth term against the teacher's view depth (eq. 10-11)", check=C.LOSS_WEIGHT
+    )
+    lr_means: float = opt(1.6e-4, "initial means learning rate, times the scene extent")
+    lr_means_final: float = opt(1.6e-6, "final means learning rate (exponential decay), times the extent")
+    lr_quats: float = opt(1e-3, "quaternion learning rate")
+    lr_scales: float = opt(5e-3, "log-scale learning rate")
+    lr_opacities: float = opt(5e-2, "logit-opacity learning rate")
+    lr_sh0: float = opt(2.5e-3, "DC colour learning rate")
+    lr_shN: float = opt(2.5e-3 / 20, "higher SH bands learning rate")
+    checkpoint_every: int = opt(500, "steps between checkpoints (OUT/ckpt.pt; 0: none)", check=C.STEP)
+    heldout: int = opt(
+        8,
+        "held-out true views (synthetic scenes; dataset scenes with other posed panoramas)",
+        check=C.int_in(0, 1000, "held-out view count"),
+    )
+    history_every: int = opt(100, "steps between history samples (training-view and held-out PSNR; 0: none)")
+    eval_at: tuple[int, ...] = opt(
         (),
         "steps before the last at which the full evaluation (pseudo-label and held-out PSNR, SSIM, LPIPS) is also "
         "recorded, in metrics.json's 'budgets' beside the final step's: one run read at several training budgets",
+        check=C.int_in(1, 10_000_000, "step"),
+        many=True,
     )
-    sky: str = _f(
-        "panorama", "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none"
+    sky: str = opt(
+        "panorama",
+        "behind the Gaussians: panorama (its sky pixels, a fixed environment at infinity) or none",
+        choices=("panorama", "none"),
     )
-    init_opacity: float = _f(0.1, "opacity of every initial Gaussian (3DGS: 0.1; see docs/benchmarks.md for 0.5)")
-    disocclusion_fill_deg: float = _f(
+    init_opacity: float = opt(
+        0.1, "opacity of every initial Gaussian, in (0, 1) (3DGS: 0.1)", check=C.float_in(0.0, 1.0, "opacity")
+    )
+    disocclusion_fill_deg: float = opt(
         20.0,
         "degrees of background added behind each depth edge of the cloud, as seen from the centre, for views "
         "that look behind it (0: none; splat/initial.py)",
+        check=C.float_in(0.0, 180.0, "degrees"),
     )
-    disocclusion_fill_visits: float = _f(
+    disocclusion_fill_visits: float = opt(
         40.0,
         "label views that have seen each direction, on average, when the fill joins the model: the surface in "
         "front of it is opaque from the centre by then, so it keeps its colour and opacity for the views that look "
         "behind (step ~500 at 60 deg). A run that gets there only after half its steps takes the fill into its "
         "initial cloud instead (0: always there)",
     )
-    disocclusion_opacity: float = _f(
-        0.9, "opacity of fill Gaussians that join late: hidden from the centre, they keep about what they start with"
+    disocclusion_opacity: float = opt(
+        0.9,
+        "opacity of fill Gaussians that join late: hidden from the centre, they keep about what they start with",
+        check=C.float_in(0.0, 1.0, "opacity"),
     )
-    init_pixels_per_point: float = _f(
+    init_pixels_per_point: float = opt(
         1.0,
         "label pixels per initial point over the sphere: the source's cloud is "
         "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)",
     )
-    seed: int = _f(0, "random seed")
+    seed: int = opt(0, "random seed", check=C.SEED)
+
+    def __post_init__(self):
+        object.__setattr__(self, "eval_at", tuple(self.eval_at))  # a suite's TOML list, a CLI's tuple
+        if not 0 <= self.coarse_until <= 1:
+            raise ValueError(f"coarse_until={self.coarse_until!r}: expected a fraction of iters in [0, 1]")
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"strategy={self.strategy!r}: expected one of {', '.join(STRATEGIES)}")
+        if self.sky not in ("panorama", "none"):
+            raise ValueError(f"sky={self.sky!r}: expected panorama or none")
+        if not (isinstance(self.densify_from, int) and self.densify_from >= 0):
+            raise ValueError(f"densify_from={self.densify_from!r}: expected a step >= 0")
+        if not 0 <= self.densify_until <= 1:
+            raise ValueError(f"densify_until={self.densify_until!r}: expected a fraction of iters in [0, 1]")
+        if not self.grad_threshold > 0:
+            raise ValueError(f"grad_threshold={self.grad_threshold!r}: expected a gradient > 0")
+        if not 0 < self.init_opacity < 1:
+            raise ValueError(f"init_opacity={self.init_opacity!r}: expected an opacity in (0, 1)")
+        if not (math.isfinite(self.disocclusion_fill_visits) and self.disocclusion_fill_visits >= 0):
+            raise ValueError(
+                f"disocclusion_fill_visits={self.disocclusion_fill_visits!r}: expected a finite number of views >= 0"
+            )
+        if not 0 < self.disocclusion_opacity < 1:
+            raise ValueError(f"disocclusion_opacity={self.disocclusion_opacity!r}: expected an opacity in (0, 1)")
+        for name in ("w_l1", "w_ssim", "w_depth"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name}={getattr(self, name)!r}: expected a finite loss weight >= 0")
+        if not 0 <= self.disocclusion_fill_deg <= 180:
+            raise ValueError(f"disocclusion_fill_deg={self.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
+        C.validate(self)
 
     def digest(self) -> str:
         return hashlib.sha256(json.dumps(dataclasses.asdict(self), sort_keys=True).encode()).hexdigest()[:16]
@@ -398,33 +464,6 @@ def train(
     from tqdm import tqdm
 
     cfg = config
-    if not 0 <= cfg.coarse_until <= 1:
-        raise ValueError(f"coarse_until={cfg.coarse_until!r}: expected a fraction of iters in [0, 1]")
-    if cfg.strategy not in STRATEGIES:
-        raise ValueError(f"strategy={cfg.strategy!r}: expected one of {', '.join(STRATEGIES)}")
-    if cfg.sky not in ("panorama", "none"):
-        raise ValueError(f"sky={cfg.sky!r}: expected panorama or none")
-    if not (isinstance(cfg.densify_from, int) and cfg.densify_from >= 0):
-        raise ValueError(f"densify_from={cfg.densify_from!r}: expected a step >= 0")
-    if not 0 <= cfg.densify_until <= 1:
-        raise ValueError(f"densify_until={cfg.densify_until!r}: expected a fraction of iters in [0, 1]")
-    if not cfg.grad_threshold > 0:
-        raise ValueError(f"grad_threshold={cfg.grad_threshold!r}: expected a gradient > 0")
-    if not 0 < cfg.init_opacity < 1:
-        raise ValueError(f"init_opacity={cfg.init_opacity!r}: expected an opacity in (0, 1)")
-    if not (math.isfinite(cfg.disocclusion_fill_visits) and cfg.disocclusion_fill_visits >= 0):
-        raise ValueError(
-            f"disocclusion_fill_visits={cfg.disocclusion_fill_visits!r}: expected a finite number of views >= 0"
-        )
-    if not 0 < cfg.disocclusion_opacity < 1:
-        raise ValueError(f"disocclusion_opacity={cfg.disocclusion_opacity!r}: expected an opacity in (0, 1)")
-    for name in ("w_l1", "w_ssim", "w_depth"):
-        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0):
-            raise ValueError(f"{name}={getattr(cfg, name)!r}: expected a finite loss weight >= 0")
-    if any(not (isinstance(n, int) and 0 < n) for n in cfg.eval_at):
-        raise ValueError(f"eval_at={cfg.eval_at!r}: expected steps >= 1")
-    if not 0 <= cfg.disocclusion_fill_deg <= 180:
-        raise ValueError(f"disocclusion_fill_deg={cfg.disocclusion_fill_deg!r}: expected degrees in [0, 180]")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
