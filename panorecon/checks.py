@@ -51,11 +51,13 @@ class IntIn:
 class FloatIn:
     """A finite float in [lo, hi] (either bound None: unbounded on that side)."""
 
-    def __init__(self, lo: float | None, hi: float | None, what: str = "number"):
-        self.lo, self.hi, self.what = lo, hi, what
+    def __init__(self, lo: float | None, hi: float | None, what: str = "number", expect: str | None = None):
+        self.lo, self.hi, self.what, self.expect = lo, hi, what, expect
         self.__name__ = what
 
     def expected(self) -> str:
+        if self.expect:
+            return self.expect
         if self.lo is not None and self.hi is not None:
             return f"a number from {self.lo:g} to {self.hi:g}"
         if self.lo is not None:
@@ -126,7 +128,7 @@ POSITIVE_FLOAT = float_in(1e-12, None, "positive number")
 FINITE_FLOAT = float_in(None, None, "number")
 FRACTION = float_in(0.0, 1.0, "fraction")
 LOSS_WEIGHT = float_in(0.0, None, "loss weight")
-NON_NEGATIVE = float_in(0.0, None, "number >= 0")
+NON_NEGATIVE = FloatIn(0.0, None, "number >= 0", expect="a finite value >= 0")
 FOV_DEG = float_in(1.0, 170.0, "field of view")
 DEPTH_SCALE = float_in(1e-9, 1e9, "depth scale")
 

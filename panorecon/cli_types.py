@@ -41,7 +41,7 @@ def cli_check(check):
     if isinstance(check, C.IntIn):
         return _IntIn(check.lo, check.hi, check.what, check.even)
     if isinstance(check, C.FloatIn):
-        return _FloatIn(check.lo, check.hi, check.what)
+        return _FloatIn(check.lo, check.hi, check.what, check.expect)
     if isinstance(check, C.FiniteVector):
         return _FiniteVector(check.n, check.what)
     return check
