@@ -119,10 +119,14 @@ def add_settings(parser: argparse.ArgumentParser, config: type) -> None:
         m, kw = s.meta, {"help": _help(s)}
         where = parser
         if m.get("group"):
-            where = groups.setdefault(m["group"], parser.add_argument_group(m["group"]))
+            if m["group"] not in groups:
+                groups[m["group"]] = parser.add_argument_group(m["group"])
+            where = groups[m["group"]]
         if m.get("exclusive"):
             key = "exclusive:" + m["exclusive"]
-            where = groups.setdefault(key, parser.add_mutually_exclusive_group(required=True))
+            if key not in groups:
+                groups[key] = parser.add_mutually_exclusive_group(required=True)
+            where = groups[key]
         if s.type == "bool":
             where.add_argument(f"--{s.name.replace('_', '-')}", dest=s.name, action="store_true", **kw)
             continue
