@@ -148,6 +148,7 @@ def opt(
     positional: bool = False,
     required: bool = False,
     many: bool = False,
+    repeat: bool = False,
     metavar: str | None = None,
     group: str | None = None,
     exclusive: str | None = None,
@@ -157,7 +158,8 @@ def opt(
     function giving them (a registry, read when needed); ``role``: a path's role (ROLES); ``writes``: for an
     output folder, what the command writes in it (fnmatch patterns, ``*`` crosses folders); ``flag``: the option
     (default ``--field-name``); ``positional``: a positional argument (with a default: optional); ``required``:
-    the option must be given; ``many``: one or more values (a tuple); ``group``: a help section; ``exclusive``:
+    the option must be given; ``many``: one or more values (a tuple); ``repeat``: with ``many``, one value per
+    occurrence of the option (``--set a=1 --set b=2``; a list after one option would swallow positionals); ``group``: a help section; ``exclusive``:
     exactly one field of that name's group is given; ``suite``: also a suite-file key where the config is a
     suite row's."""
     if role is not None and role not in ROLES:
@@ -172,6 +174,7 @@ def opt(
         positional=positional,
         required=required,
         many=many,
+        repeat=repeat,
         metavar=metavar,
         group=group,
         exclusive=exclusive,
@@ -220,6 +223,7 @@ def default_check(base: str):
 
 
 TYPE_NAMES = {"str": "a string", "int": "an integer", "float": "a number", "bool": "true or false"}
+PLURALS = {"str": "strings", "int": "integers", "float": "numbers", "bool": "booleans"}
 
 
 def problem(s: Setting, value) -> str | None:
@@ -227,20 +231,24 @@ def problem(s: Setting, value) -> str | None:
     type, ``: <what the check or the choices expect>`` for a value out of range."""
     if value is None and ("None" in s.type or s.default is None):
         return None
+    many = bool(s.meta.get("many"))
     base = s.type.replace("| None", "").strip()
+    if many:  # tuple[T, ...]: a list of T
+        base = base.removeprefix("tuple[").removesuffix(", ...]")
     want = {"str": str, "int": int, "float": (int, float), "bool": bool}.get(base)
-    if want is not None and (not isinstance(value, want) or (base != "bool" and isinstance(value, bool))):
-        return f" is {type(value).__name__}; expected {TYPE_NAMES[base]}"
+    items = value if many and isinstance(value, (list, tuple)) else [value]
+    if (many and not isinstance(value, (list, tuple))) or (
+        want is not None and any(not isinstance(v, want) or (base != "bool" and isinstance(v, bool)) for v in items)
+    ):
+        return f" is {type(value).__name__}; expected {f'a list of {PLURALS[base]}' if many else TYPE_NAMES[base]}"
     choices = s.choices
-    if choices is not None and any(v not in choices for v in (value if s.meta.get("many") else [value])):
+    if choices is not None and any(v not in choices for v in items):
         return f": expected one of {', '.join(map(str, choices))}"
     check = s.meta.get("check")
     try:
-        if check is not None and hasattr(check, "check"):
-            for v in value if s.meta.get("many") else [value]:
-                check.check(v)
-        elif check is None and base in ("int", "float"):
-            default_check(base).check(value)
+        check = check if check is not None else default_check(base)
+        for v in items if check is not None and hasattr(check, "check") else ():
+            check.check(v)
     except CheckError as e:
         return f": {e}"
     return None

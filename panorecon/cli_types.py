@@ -8,6 +8,7 @@ work starts. Use e.g. ``p.add_argument("--views", type=VIEWS)`` or ``type=int_in
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from pathlib import Path
 
@@ -228,3 +229,85 @@ def path_collisions(values: dict[str, object], names: dict[str, str] | None = No
             if b.kind == "dir" and b.role == "out" and _written_in(pb, b.writes, pa):
                 return f"{la} lies in {lb}, where this command writes: an output may not overwrite {what}"
     return None
+
+
+# ---------------------------------------------------------------- a config's fields as argparse options
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``panorecon <command>: error: ...``, exit 2) instead of usage + error;
+    subcommand parsers inherit it."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _cli_type(s: C.Setting):
+    """The argparse ``type=`` of a setting: its path role's (the collision check reads it) or its check."""
+    role = s.meta.get("role")
+    if role == "out-dir":
+        return out_dir_writing(*s.meta["writes"])
+    if role is not None:
+        return {"in": in_path, "scene": scene, "teacher": teacher_spec, "out-file": out_file}[role]
+    check = s.meta.get("check") or C.default_check(s.type.replace("| None", "").strip())
+    return cli_check(check) if check is not None else None
+
+
+def _help(s: C.Setting) -> str:
+    shown = ",".join(map(str, s.default)) if isinstance(s.default, tuple) else s.default
+    plain = s.default in (None, ()) or isinstance(s.default, bool) or "(default" in s.meta["help"]
+    return s.meta["help"] if plain else f"{s.meta['help']} (default {shown})".lstrip()
+
+
+def add_settings(parser: argparse.ArgumentParser, config: type) -> None:
+    """One argument per leaf setting of ``config`` (``checks.settings``): positional or ``--field-name``, with
+    its type (check or path role), default, choices and help; help sections and exclusive groups as declared."""
+    groups: dict[str, argparse._ActionsContainer] = {}
+    for s in C.settings(config):
+        m, kw = s.meta, {"help": _help(s)}
+        where = parser
+        if m.get("group"):
+            if m["group"] not in groups:
+                groups[m["group"]] = parser.add_argument_group(m["group"])
+            where = groups[m["group"]]
+        if m.get("exclusive"):
+            key = "exclusive:" + m["exclusive"]
+            if key not in groups:
+                groups[key] = parser.add_mutually_exclusive_group(required=True)
+            where = groups[key]
+        if s.type == "bool":
+            where.add_argument(f"--{s.name.replace('_', '-')}", dest=s.name, action="store_true", **kw)
+            continue
+        kw.update(type=_cli_type(s), choices=s.choices, metavar=m.get("metavar"))
+        kw["default"] = list(s.default) if m.get("many") else s.default
+        if m.get("positional"):
+            nargs = ("+" if m.get("required") else "*") if m.get("many") else (None if m.get("required") else "?")
+            where.add_argument(s.name, nargs=nargs, **kw)
+            continue
+        if m.get("repeat"):  # one value per occurrence: --set a=1 --set b=2
+            kw["action"] = "append"
+        elif m.get("many"):  # one or more values after the option: --eval-at 300 1000
+            kw["nargs"] = "+"
+        flag = m.get("flag") or f"--{s.name.replace('_', '-')}"
+        where.add_argument(flag, dest=s.name, required=bool(m.get("required")), **kw)
+
+
+def build_config(config: type, values: dict):
+    """The config (nested ones built too) from parsed values by field name; lists become tuples."""
+    kwargs = {}
+    for f in dataclasses.fields(config):
+        if "nested" in f.metadata:
+            kwargs[f.name] = build_config(f.metadata["nested"], values)
+        else:
+            v = values[f.name]
+            kwargs[f.name] = tuple(v) if isinstance(v, list) else v
+    return config(**kwargs)
+
+
+def parse_config(config: type, argv: list[str] | None, description: str, prog: str | None = None):
+    """``argv`` parsed into ``config`` by the same rules as the ``panorecon`` commands (a module's own ``main``,
+    e.g. the micro-benchmarks'); a bad option exits 2 with one line."""
+    parser = Parser(prog=prog, description=description)
+    add_settings(parser, config)
+    try:
+        return build_config(config, vars(parser.parse_args(argv)))
+    except ValueError as e:
+        parser.error(str(e))

@@ -280,6 +280,7 @@ class AblateConfig:
         "override a suite's [defaults] setting in every suite given, e.g. --set iters=10000 (repeatable; the runs "
         "are then other runs, with their own results)",
         many=True,
+        repeat=True,
         metavar="KEY=VALUE",
     )
     engine: str = opt(

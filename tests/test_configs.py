@@ -108,6 +108,8 @@ def test_a_value_out_of_range_is_refused_by_the_option_and_the_suite_with_the_sa
     cli_err = capsys.readouterr().err.strip()
     suite = tmp_path / "s.toml"
     toml_value = f'"{value}"' if isinstance(value, str) else repr(value)
+    if TRAIN_OPTIONS[name].meta.get("many"):  # a list in the suite, one or more values after the option
+        toml_value = f"[{toml_value}]"
     depth = f'depth = "{tmp_path / "d.npy"}"\n' if name.startswith("depth_") else ""
     suite.write_text(f'[defaults]\n{depth}{name} = {toml_value}\n[grid]\nscene = ["bedroom"]\nsource = ["random"]\n')
     with pytest.raises(PanoreconInputError) as e:

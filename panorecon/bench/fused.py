@@ -140,7 +140,7 @@ class BenchFusedConfig:
 
 
 def main(argv=None) -> dict:
-    from ..cli import parse_config
+    from ..cli_types import parse_config
 
     cfg = parse_config(BenchFusedConfig, argv, __doc__.splitlines()[0])
     result = measure(cfg.quick, cfg.repeats)

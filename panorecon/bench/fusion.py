@@ -75,7 +75,7 @@ class BenchFusionConfig:
 
 
 def main(argv=None) -> dict:
-    from ..cli import parse_config
+    from ..cli_types import parse_config
 
     cfg = parse_config(BenchFusionConfig, argv, __doc__.splitlines()[0])
     # (ERP height, view size); quick: 512 x 256, large enough that the ratio is not dominated by fixed costs

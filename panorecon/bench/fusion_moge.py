@@ -243,7 +243,7 @@ class BenchFusionMogeConfig:
 
 
 def main(argv=None) -> dict:
-    from ..cli import parse_config
+    from ..cli_types import parse_config
 
     cfg = parse_config(BenchFusionMogeConfig, argv, __doc__.splitlines()[0])
     with open("/proc/loadavg") as f:

@@ -189,7 +189,7 @@ class BenchRasterizerConfig:
 
 
 def main(argv=None) -> dict:
-    from ..cli import parse_config
+    from ..cli_types import parse_config
 
     cfg = parse_config(BenchRasterizerConfig, argv, __doc__.splitlines()[0])
     grid = [(128, 10_000)] if cfg.quick else [(s, n) for s in (128, 256, 512) for n in (10_000, 100_000)]

@@ -308,7 +308,7 @@ class BenchRooflineConfig:
 
 
 def main(argv=None) -> dict:
-    from ..cli import parse_config
+    from ..cli_types import parse_config
 
     cfg = parse_config(BenchRooflineConfig, argv, __doc__.splitlines()[0])
     if cfg.threads:

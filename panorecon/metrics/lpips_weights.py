@@ -212,7 +212,7 @@ class LpipsWeightsConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ..cli import parse_config
+    from ..cli_types import parse_config
 
     args = parse_config(
         LpipsWeightsConfig, argv, __doc__.split("\n")[0], prog="python -m panorecon.metrics.lpips_weights"
