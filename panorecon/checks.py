@@ -159,9 +159,9 @@ def opt(
     output folder, what the command writes in it (fnmatch patterns, ``*`` crosses folders); ``flag``: the option
     (default ``--field-name``); ``positional``: a positional argument (with a default: optional); ``required``:
     the option must be given; ``many``: one or more values (a tuple); ``repeat``: with ``many``, one value per
-    occurrence of the option (``--set a=1 --set b=2``; a list after one option would swallow positionals); ``group``: a help section; ``exclusive``:
-    exactly one field of that name's group is given; ``suite``: also a suite-file key where the config is a
-    suite row's."""
+    occurrence of the option (``--set a=1 --set b=2``; a list after one option would swallow positionals);
+    ``group``: a help section; ``exclusive``: exactly one field of that name's group is given; ``suite``: also a
+    suite-file key where the config is a suite row's."""
     if role is not None and role not in ROLES:
         raise ValueError(f"role {role!r}: expected one of {', '.join(ROLES)}")
     meta = dict(

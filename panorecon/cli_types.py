@@ -93,7 +93,7 @@ def _nearest_existing(path: Path) -> Path:
 
 
 # ---------------------------------------------------------------- path roles (the collision check)
-# Every path argument is declared with its role: an input (``in_path``, ``scene``, ``teacher_spec``) or an output
+# Every path argument is declared with its role: an input (``in_path``, ``scene``, ``SpecArg``) or an output
 # (``out_file``, ``out_dir``, ``out_dir_writing(...)``). Their values are ``PathArg``s (plain ``str`` subclasses,
 # so commands use them as before) and ``path_collisions`` (run by cli.main on the parsed arguments, before
 # any command starts) refuses an output that is an input or another output, after real paths (symlinks
@@ -129,19 +129,21 @@ def scene(text: str) -> PathArg:
     return PathArg.make(text, "in", "file", paths=(text,) if os.path.exists(text) else ())
 
 
-SPEC_PATH_KINDS = ("file", "onnx", "hf", "moge")  # teacher kinds whose argument is a path (hf/moge: or a model id)
+class SpecArg:
+    """A spec option (a teacher spec): its setting's check parses it (a malformed one is argparse's one line,
+    before any work); a spec that names an existing file or folder makes it an input (``path_collisions``)."""
 
+    def __init__(self, check):
+        self.check = check
+        self.__name__ = getattr(check, "__name__", "spec")
 
-def teacher_spec(text: str) -> PathArg:
-    """A teacher spec: its syntax and option keys are checked here (``panorecon.io.specs``), before any work; a
-    spec that names a file (``file:``, ``onnx:``, a local ``hf:``/``moge:`` folder) makes that file an input."""
-    from .io.specs import SpecError, check_teacher_spec
-
-    try:
-        path = check_teacher_spec(text)
-    except SpecError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-    return PathArg.make(text, "in", "file", paths=(path,) if path and os.path.exists(path) else ())
+    def __call__(self, text: str) -> PathArg:
+        try:
+            spec = self.check(text)
+        except C.CheckError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        path = getattr(spec, "path", None)
+        return PathArg.make(text, "in", "file", paths=(path,) if path and os.path.exists(path) else ())
 
 
 def out_dir(text: str, writes: tuple[str, ...] = ()) -> PathArg:
@@ -246,7 +248,9 @@ def _cli_type(s: C.Setting):
     if role == "out-dir":
         return out_dir_writing(*s.meta["writes"])
     if role is not None:
-        return {"in": in_path, "scene": scene, "teacher": teacher_spec, "out-file": out_file}[role]
+        if role == "teacher":
+            return SpecArg(s.meta["check"])
+        return {"in": in_path, "scene": scene, "out-file": out_file}[role]
     check = s.meta.get("check") or C.default_check(s.type.replace("| None", "").strip())
     return cli_check(check) if check is not None else None
 

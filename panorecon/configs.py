@@ -17,6 +17,7 @@ from pathlib import Path
 from . import checks as C
 from .checks import nest, opt
 from .splat.trainer import TrainConfig
+from .teachers.spec import TEACHER_SPEC, TeacherSpec
 
 # what each command writes into its --out folder (relative fnmatch patterns; ``*`` crosses folders): the path
 # collision check (cli_types.path_collisions) and the run-folder claim (io.runs.claim_run) both use them
@@ -142,13 +143,15 @@ class SourceArgs:
     """A point source, its depth teacher and view count."""
 
     source: str | None = opt(None, "point source (see `panorecon sources list`)", required=True)
-    teacher: str | None = opt(None, TEACHER_HELP, role="teacher")
+    teacher: str | None = opt(None, TEACHER_HELP, role="teacher", check=TEACHER_SPEC)
     views: int | None = opt(
         None, "views of the point source (fibonacci, latlong; default: the source's own)", check=C.VIEWS
     )
 
     def __post_init__(self):
         C.validate(self)
+        if self.teacher is not None:  # parsed once, here: what runs below gets the TeacherSpec
+            object.__setattr__(self, "teacher", TeacherSpec(str(self.teacher)))
 
 
 @dataclass(frozen=True)
@@ -413,9 +416,10 @@ class DemoConfig:
         scene={"positional": False, "required": False, "help": "scene name (default: the built-in default scene)"},
         width={"default": 512, "help": "ERP width in pixels (height = width / 2)"},
     )
-    teacher: str = opt("sim:relative", "depth teacher for the method's point cloud", role="teacher")
+    teacher: str = opt("sim:relative", "depth teacher for the method's point cloud", role="teacher", check=TEACHER_SPEC)
     iters: int = opt(300, "training steps", check=C.ITERS)
     res: int = opt(128, "label view size in pixels for training", check=C.LABEL_RES)
 
     def __post_init__(self):
         C.validate(self)
+        object.__setattr__(self, "teacher", TeacherSpec(str(self.teacher)))

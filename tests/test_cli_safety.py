@@ -108,7 +108,7 @@ def _role(action) -> str | None:
         return "out-dir"
     if t in (T.in_path, T.scene):
         return "in"
-    if t is T.teacher_spec:
+    if isinstance(t, T.SpecArg):
         return "spec"
     return None
 

@@ -46,10 +46,10 @@ def test_every_config_field_is_an_option_with_its_default_choices_and_check(word
         role = s.meta.get("role")
         if role == "out-dir":
             assert isinstance(a.type, T._OutDirWriting) and a.type.writes == s.meta["writes"], s.name
+        elif role == "teacher":
+            assert isinstance(a.type, T.SpecArg) and a.type.check is check, s.name
         elif role is not None:
-            assert (
-                a.type is {"in": T.in_path, "scene": T.scene, "teacher": T.teacher_spec, "out-file": T.out_file}[role]
-            )
+            assert a.type is {"in": T.in_path, "scene": T.scene, "out-file": T.out_file}[role], s.name
 
 
 def test_a_train_command_with_no_options_trains_with_the_trainers_defaults(tmp_path):
@@ -139,3 +139,13 @@ def test_a_config_built_in_code_is_checked_as_the_option_is():
         SceneArgs(scene="bedroom", depth_scale=0.001)
     with pytest.raises(dataclasses.FrozenInstanceError):
         TrainConfig().iters = 5
+
+
+def test_a_teacher_spec_is_parsed_once_where_the_command_line_is_read(tmp_path):
+    from panorecon.teachers import TeacherSpec
+
+    argv = ["train", "bedroom", "--source", "fibonacci", "--teacher", "sim:relative", "--out", str(tmp_path / "o")]
+    args = build_parser().parse_args(argv)
+    cfg = build_config(args.config, vars(args))
+    assert isinstance(cfg.source.teacher, TeacherSpec) and cfg.source.teacher.kind == "sim"
+    assert cfg.source.teacher == "sim:relative"

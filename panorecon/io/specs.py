@@ -1,6 +1,7 @@
-"""Spec strings (``file:<path>?scale=S&metric=1``, ``hf:<id>?batch=N``, ``sim:<profile>``, ...): their option
-keys parsed once, strictly. An unknown key, a key given twice, an empty key or a missing ``=`` is refused with
-the known keys listed; values are checked by each option's parser."""
+"""The option grammar of spec strings (``file:<path>?scale=S&metric=1``, ``hf:<id>?batch=N``): ``key=value`` pairs
+parsed strictly. An unknown key, a key given twice, an empty key or a missing ``=`` is refused with the known keys
+listed; values are checked by each option's parser (``yes_no``, ``positive_float``, ...). Which keys a spec
+knows is declared by its owner (each teacher module's ``OPTIONS``, ``teachers/spec.py``)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ class SpecError(PanoreconInputError):
     """A malformed spec string: the message names the spec and lists what is known."""
 
 
-def _bool(text: str) -> bool:
+def yes_no(text: str) -> bool:
     low = text.lower()
     if low in ("1", "true", "yes"):
         return True
@@ -22,7 +23,7 @@ def _bool(text: str) -> bool:
     raise ValueError("not a yes/no value (expected 1/true/yes or 0/false/no)")
 
 
-def _positive_float(text: str) -> float:
+def positive_float(text: str) -> float:
     import math
 
     try:
@@ -34,7 +35,7 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
     try:
         value = int(text, 10)
     except ValueError:
@@ -44,20 +45,10 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _device(text: str) -> str:
+def device(text: str) -> str:
     if text not in ("cpu", "cuda"):
         raise ValueError("not a device (expected cpu or cuda)")
     return text
-
-
-# each teacher kind's options: key -> parser (text -> value, ValueError when invalid)
-TEACHER_OPTIONS: dict[str, dict[str, Callable[[str], object]]] = {
-    "sim": {},
-    "onnx": {},
-    "file": {"scale": _positive_float, "metric": _bool},
-    "hf": {"batch": _positive_int, "device": _device},
-    "moge": {"batch": _positive_int, "device": _device},
-}
 
 
 def parse_options(spec: str, query: str, known: dict[str, Callable[[str], object]]) -> dict[str, object]:
@@ -83,29 +74,3 @@ def parse_options(spec: str, query: str, known: dict[str, Callable[[str], object
         except ValueError as e:
             raise SpecError(f"{spec!r}: {key}={text!r} is {e}") from None
     return out
-
-
-def split_teacher_spec(spec: str) -> tuple[str, str, dict[str, object]]:
-    """``kind:arg?options`` -> (kind, arg, parsed options); SpecError for an unknown kind or bad options."""
-    kind, colon, rest = spec.partition(":")
-    if not colon or kind not in TEACHER_OPTIONS:
-        raise SpecError(
-            f"teacher {spec!r}: expected sim:<profile>, onnx:<model.onnx>, file:<depth.png|.npy>, "
-            "hf:<model id or folder> or moge:<checkpoint>"
-        )
-    arg, _, query = rest.partition("?")
-    return kind, arg, parse_options(f"teacher {spec}", query, TEACHER_OPTIONS[kind])
-
-
-def check_teacher_spec(spec: str) -> str | None:
-    """Check a teacher spec's syntax and options, and that a file:/onnx: file exists (none is read) -> the path
-    it names (file:, onnx:, and
-    hf:/moge: when the argument is not a model id), or None."""
-    import os
-
-    kind, arg, _ = split_teacher_spec(spec)
-    if not arg:
-        raise SpecError(f"teacher {spec!r}: {kind}: needs an argument (see `panorecon teachers list`)")
-    if kind in ("file", "onnx") and not os.path.isfile(arg):
-        raise SpecError(f"teacher {spec!r}: {arg}: no such file")
-    return arg if kind != "sim" else None

@@ -10,42 +10,36 @@ from ..io import PanoreconInputError
 from .base import ErpDepth, Teacher
 from .hf_teacher import OUTPUT_KINDS
 from .sim import PROFILES, SimProfile, SimTeacher
+from .spec import TEACHER_SPEC, TeacherSpec
 
 
-def get_teacher(spec: str, seed: int = 0) -> Teacher:
-    """Parse a teacher spec: ``sim:<profile>``, ``onnx:<model.onnx>``, ``file:<path>[?scale=S&metric=1]`` or
-    ``hf:<model id or folder>[?batch=N&device=D]`` or ``moge:<checkpoint>[?batch=N&device=D]``."""
-    from ..io.specs import split_teacher_spec
-
-    kind = split_teacher_spec(spec)[0]  # unknown kinds and option keys refused here
-    arg = spec.partition(":")[2]  # each teacher parses its own options (with the same table)
-    if kind == "sim":
-        if arg not in PROFILES:
+def get_teacher(spec: str | TeacherSpec, seed: int = 0) -> Teacher:
+    """The teacher a spec names (``TeacherSpec``, or its text, parsed here): ``sim:<profile>``,
+    ``onnx:<model.onnx>``, ``file:<path>[?scale=S&metric=1]``, ``hf:<model id or folder>[?batch=N&device=D]`` or
+    ``moge:<checkpoint>[?batch=N&device=D]``. ``seed`` seeds a simulated teacher's errors."""
+    spec = TeacherSpec(spec)
+    if spec.kind == "sim":
+        if spec.arg not in PROFILES:
             raise PanoreconInputError(
-                f"teacher {spec!r}: unknown simulated profile; expected one of "
+                f"teacher {str(spec)!r}: unknown simulated profile; expected one of "
                 + ", ".join(f"sim:{p}" for p in PROFILES)
             )
-        return SimTeacher(PROFILES[arg], seed)
-    if kind == "onnx" and arg:
+        return SimTeacher(PROFILES[spec.arg], seed)
+    if spec.kind == "onnx":
         from .onnx_teacher import OnnxTeacher
 
-        return OnnxTeacher(arg)
-    if kind == "file" and arg:
+        return OnnxTeacher(spec.arg)
+    if spec.kind == "file":
         from .file_teacher import FileTeacher
 
-        return FileTeacher(arg)
-    if kind == "hf":
+        return FileTeacher(spec)
+    if spec.kind == "hf":
         from .hf_teacher import HFTeacher
 
-        return HFTeacher(arg)
-    if kind == "moge":
-        from .moge_teacher import MoGeTeacher
+        return HFTeacher(spec)
+    from .moge_teacher import MoGeTeacher
 
-        return MoGeTeacher(arg)
-    raise PanoreconInputError(
-        f"teacher {spec!r}: expected sim:<profile>, onnx:<model.onnx>, file:<depth.png|.npy>, "
-        "hf:<model id or folder> or moge:<checkpoint>"
-    )
+    return MoGeTeacher(spec)
 
 
 def seeded_teacher(spec: str | None) -> bool:
@@ -115,6 +109,8 @@ __all__ = [
     "SimProfile",
     "SimTeacher",
     "PROFILES",
+    "TEACHER_SPEC",
+    "TeacherSpec",
     "get_teacher",
     "list_teachers",
     "seeded_teacher",

@@ -23,24 +23,24 @@ import cv2
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, sample_erp
-from ..io import PanoreconInputError, read_image
+from ..io import PanoreconInputError, read_image, specs
 from ..io.depth import check_depth_dtype, unit_warning
 from ..io.files import check_erp_shape
-from ..io.specs import TEACHER_OPTIONS, parse_options
 from .base import ErpDepth
 
+ARG = "<depth.png|.npy>"  # the spec's argument (teachers/spec.py)
+OPTIONS = {"scale": specs.positive_float, "metric": specs.yes_no}
 MAX_UPSAMPLE = 2
 log = logging.getLogger("panorecon.teacher")
 
 
 class FileTeacher:
-    def __init__(self, spec: str):
-        path, _, query = spec.partition("?")
-        opts = parse_options(f"teacher file:{spec}", query, TEACHER_OPTIONS["file"])
-        self.scale = opts.get("scale", 1.0)
-        self.metric = opts.get("metric", False)
-        self.path = Path(path)
-        self.name = f"file:{spec}"
+    def __init__(self, spec):
+        """``spec``: a ``teachers.spec.TeacherSpec`` of kind ``file``."""
+        self.scale = spec.options.get("scale", 1.0)
+        self.metric = spec.options.get("metric", False)
+        self.path = Path(spec.arg)
+        self.name = str(spec)
         self._distance = self._load()
         self._resample_said: set[tuple[int, int]] = set()
 

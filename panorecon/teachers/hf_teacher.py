@@ -21,8 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, erp_to_perspective
-from ..io import PanoreconInputError
-from ..io.specs import TEACHER_OPTIONS, parse_options
+from ..io import PanoreconInputError, specs
 from .base import ErpDepth, batches_by_size, sky_of_view, view_fov_deg
 
 
@@ -62,6 +61,8 @@ OUTPUT_KINDS: dict[tuple[str, str | None], OutputKind] = {
 
 
 # transformers (5.23) post-processes these with torchvision (its PIL fallback for ZoeDepth still calls it)
+ARG = "<model id or folder>"  # the spec's argument (teachers/spec.py)
+OPTIONS = {"batch": specs.positive_int, "device": specs.device}
 _NEEDS_TORCHVISION = ("zoedepth", "depth_pro")
 
 
@@ -88,21 +89,19 @@ def _not_found(source: str) -> PanoreconInputError:
 class HFTeacher:
     """A transformers depth network as a panorecon teacher (see the module docstring)."""
 
-    def __init__(self, spec: str, progress: bool = True):
-        source, _, query = spec.partition("?")
-        opts = parse_options(f"teacher hf:{spec}", query, TEACHER_OPTIONS["hf"])
-        if not source:
-            raise PanoreconInputError("teacher hf:: expected hf:<model id or local folder>")
+    def __init__(self, spec, progress: bool = True):
+        """``spec``: a ``teachers.spec.TeacherSpec`` of kind ``hf``."""
+        source, opts = spec.arg, spec.options
         self.batch = opts.get("batch", 8)
         try:
             import torch
             from transformers import AutoConfig, AutoImageProcessor, AutoModelForDepthEstimation
         except ImportError:
             raise PanoreconInputError("the hf teacher needs transformers: pip install 'panorecon[hf]'") from None
-        self.name, self.source, self.progress = f"hf:{spec}", source, progress
+        self.name, self.source, self.progress = str(spec), source, progress
         device = opts.get("device", "cuda" if torch.cuda.is_available() else "cpu")
         if device not in ("cpu", "cuda") or (device == "cuda" and not torch.cuda.is_available()):
-            raise PanoreconInputError(f"teacher hf:{spec}: device={device!r}: expected cpu, or cuda where CUDA exists")
+            raise PanoreconInputError(f"teacher {spec}: device={device!r}: expected cpu, or cuda where CUDA exists")
         self.device, self.dtype = torch.device(device), torch.float16 if device == "cuda" else torch.float32
         try:
             config = AutoConfig.from_pretrained(source, local_files_only=True)

@@ -16,14 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import PinholeCamera, ViewDepth, erp_to_perspective
-from ..io import PanoreconInputError
+from ..io import PanoreconInputError, specs
 from ..io.files import first_sentence
-from ..io.specs import TEACHER_OPTIONS, parse_options
 from .base import ErpDepth, batches_by_size, sky_of_view, view_fov_deg
 from .hf_teacher import OutputKind
 
 MOGE1 = OutputKind("z", affine=False, metric=False, takes_fov=True)  # affine point map, shift solved with the FOV
 MOGE2_METRIC = OutputKind("z", affine=False, metric=True, takes_fov=True)
+ARG = "<checkpoint>"  # the spec's argument (teachers/spec.py)
+OPTIONS = {"batch": specs.positive_int, "device": specs.device}
 INSTALL = "pip install --no-deps dlr-moge==2.0.0 dlr-utils3d==1.3 (their own lists pull gradio and torchvision)"
 
 
@@ -37,11 +38,9 @@ def moge_output_kind(model_config: dict) -> tuple[int, OutputKind]:
 class MoGeTeacher:
     """MoGe-1 / MoGe-2 as a panorecon teacher (see the module docstring)."""
 
-    def __init__(self, spec: str, progress: bool = True):
-        source, _, query = spec.partition("?")
-        opts = parse_options(f"teacher moge:{spec}", query, TEACHER_OPTIONS["moge"])
-        if not source:
-            raise PanoreconInputError(f"teacher moge:{spec}: expected moge:<checkpoint>[?batch=N&device=cpu|cuda]")
+    def __init__(self, spec, progress: bool = True):
+        """``spec``: a ``teachers.spec.TeacherSpec`` of kind ``moge``."""
+        source, opts = spec.arg, spec.options
         try:
             import torch
             from moge.model import v1, v2
@@ -50,10 +49,8 @@ class MoGeTeacher:
         self.batch = opts.get("batch", 4)
         device = opts.get("device", "cuda" if torch.cuda.is_available() else "cpu")
         if device not in ("cpu", "cuda") or (device == "cuda" and not torch.cuda.is_available()):
-            raise PanoreconInputError(
-                f"teacher moge:{spec}: device={device!r}: expected cpu, or cuda where CUDA exists"
-            )
-        self.name, self.progress, self.device = f"moge:{spec}", progress, torch.device(device)
+            raise PanoreconInputError(f"teacher {spec}: device={device!r}: expected cpu, or cuda where CUDA exists")
+        self.name, self.progress, self.device = str(spec), progress, torch.device(device)
         path = _checkpoint(source)
         try:
             ckpt = torch.load(path, map_location="cpu", weights_only=True)

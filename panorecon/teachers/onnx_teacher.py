@@ -23,6 +23,8 @@ from ..geometry import PinholeCamera, ViewDepth, erp_to_perspective
 from ..io import PanoreconInputError
 from .base import ErpDepth, sky_of_view
 
+ARG = "<model.onnx>"  # the spec's argument (teachers/spec.py); its settings are in <model>.json beside it
+OPTIONS: dict = {}
 _OUTPUTS = ("disparity", "z", "distance")
 _MODES = ("affine", "relative", "metric")
 

@@ -44,6 +44,9 @@ class SimProfile:
     nan: float = 0.0
 
 
+ARG = "<profile>"  # the spec's argument (teachers/spec.py)
+OPTIONS: dict = {}  # a profile takes no options
+
 PROFILES = {
     p.name: p
     for p in [

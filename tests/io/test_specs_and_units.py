@@ -9,10 +9,10 @@ from hypothesis import strategies as st
 
 from panorecon.io import PanoreconInputError
 from panorecon.io.depth import PLAUSIBLE_MEDIAN_M, UNIT_CONVENTIONS, read_depth_raw, unit_warning
-from panorecon.io.specs import TEACHER_OPTIONS, SpecError, parse_options, split_teacher_spec
+from panorecon.io.specs import SpecError, parse_options, positive_float, yes_no
 from panorecon.scenes.real import read_erp_depth
 
-FILE = TEACHER_OPTIONS["file"]
+FILE = {"scale": positive_float, "metric": yes_no}  # the file: teacher's options
 keys = st.text(st.characters(min_codepoint=97, max_codepoint=122), min_size=1, max_size=8)
 
 
@@ -43,25 +43,6 @@ def test_any_query_parses_or_raises_a_spec_error(text):
         assert "\n" not in str(e)
     else:
         assert set(opts) <= set(FILE)
-
-
-@pytest.mark.parametrize(
-    "spec,needle",
-    [
-        ("file:d.npy?metric=2", "not a yes/no"),
-        ("file:d.npy?scale=nan", "not a positive number"),
-        ("file:d.npy?scale=", "not a number"),
-        ("file:d.npy?scale", "no value"),
-        ("hf:x?batch=0", "not a positive integer"),
-        ("moge:x?device=tpu", "not a device"),
-        ("sim:relative?noise=1", "known options: none"),
-        ("bogus:x", "expected sim:<profile>"),
-        ("nocolon", "expected sim:<profile>"),
-    ],
-)
-def test_bad_specs_name_the_problem(spec, needle):
-    with pytest.raises(SpecError, match=needle):
-        split_teacher_spec(spec)
 
 
 # ---------------------------------------------------------------- depth units
