@@ -39,5 +39,6 @@ def split_variant(name: str) -> tuple[str, int | None]:
             f"not {base!r}"
         )
     if not (k.isascii() and k.isdigit()) or int(k) < 1 or str(int(k)) != k:
-        raise ValueError(f"a variant {VARIANT_PATTERN} needs K an integer >= 1 without leading zeros, not {k!r}")
+        hint = " (a range A..B is for a suite's scene list)" if ".." in k else ""
+        raise ValueError(f"a variant {VARIANT_PATTERN} needs K an integer >= 1 without leading zeros, not {k!r}{hint}")
     return base, int(k)
