@@ -186,3 +186,13 @@ def test_variant_generator_depends_on_name_and_k_only():
     np.testing.assert_array_equal(draw("bedroom", 2), draw("bedroom", 2))
     assert not np.array_equal(draw("bedroom", 2), draw("bedroom", 3))
     assert not np.array_equal(draw("bedroom", 2), draw("bathroom", 2))
+
+
+def test_a_draw_with_too_little_room_at_the_eye_is_drawn_again(monkeypatch):
+    monkeypatch.setattr(S, "MIN_FREE_RADIUS", 0.82)  # between the bedroom variants' free radii (about 0.8 m)
+    worlds = [S._draw_variant("bedroom", k, 7) for k in range(1, 7)]
+    assert all(w.free_space_radius() >= 0.82 for w in worlds)
+    assert any(w.redraws > 0 for w in worlds)
+    monkeypatch.setattr(S, "MIN_FREE_RADIUS", 50.0)  # no room is that large
+    with pytest.raises(RuntimeError, match="bedroom@1"):
+        S._draw_variant("bedroom", 1, 7)
