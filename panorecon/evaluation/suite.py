@@ -23,7 +23,8 @@ Row keys: scene, width, source, teacher, views, train (false: no training), labe
 depth_kind (a real panorama's true depth, as the CLI's --depth options), and TrainConfig fields.
 ``{root}`` in a scene or depth is the dataset root (``load_suite(root=...)``, ``ablate --root``, else
 $PANORECON_DATASET_ROOT); a dataset scene whose key has a ``*`` (``stanford2d3d:{root}/area_3/*``) stands for
-every panorama under the root that matches it.
+every panorama under the root that matches it, and ``bedroom@1..10`` for the variants bedroom@1, ..., bedroom@10
+of a synthetic scene (``scenes/synthetic.py``).
 
 ``seeds``: each seed sets the training seed (TrainConfig.seed) and seeds the simulated teacher's errors and the
 random point source (``Row.seed``); a stage the seed does not change (a real teacher's depth) is shared between
@@ -208,9 +209,13 @@ def _with_root(value, root: str | None, path: Path):
 
 
 def _expand_scene(scene: str, path: Path) -> list[str]:
-    """A dataset scene with a ``*`` in its key -> the matching panoramas under its root (sorted), else [scene]."""
+    """A population of synthetic variants ``NAME@A..B`` -> NAME@A, ..., NAME@B; a dataset scene with a ``*`` in
+    its key -> the matching panoramas under its root (sorted); else [scene]."""
+    from ..scenes.catalog import VARIANT_SEP
     from ..scenes.datasets import is_dataset_name, split_name
 
+    if VARIANT_SEP in scene and ".." in scene.rpartition(VARIANT_SEP)[2] and not is_dataset_name(scene):
+        return _expand_variants(scene, path)
     if "*" not in scene or not is_dataset_name(scene):
         return [scene]
     ds, root, pattern = split_name(scene)
@@ -220,6 +225,28 @@ def _expand_scene(scene: str, path: Path) -> list[str]:
     if not found:
         raise PanoreconInputError(f"suite {path}: no {ds.prefix} panorama under {root} matches {scene!r}")
     return found
+
+
+def _expand_variants(scene: str, path: Path) -> list[str]:
+    """``bedroom@1..10`` -> ["bedroom@1", ..., "bedroom@10"] (both ends included), each name checked."""
+    from ..scenes.catalog import VARIANT_SEP
+    from ..scenes.registry import parse_variant
+
+    base, _, span = scene.rpartition(VARIANT_SEP)
+    first, _, last = span.partition("..")
+    if not all(k.isascii() and k.isdigit() and str(int(k)) == k for k in (first, last)) or not (
+        1 <= int(first) <= int(last)
+    ):
+        raise PanoreconInputError(
+            f"suite {path}: scene {scene!r}: expected a population NAME{VARIANT_SEP}A..B with integers "
+            f"1 <= A <= B, e.g. bedroom{VARIANT_SEP}1..10"
+        )
+    names = [f"{base}{VARIANT_SEP}{k}" for k in range(int(first), int(last) + 1)]
+    try:
+        parse_variant(names[0])
+    except PanoreconInputError as e:
+        raise PanoreconInputError(f"suite {path}: {e}") from None
+    return names
 
 
 def parse_override(text: str) -> tuple[str, object]:
@@ -349,17 +376,24 @@ def resolve_names(suite: Suite) -> None:
 
     from ..pipeline.stages import PROMPT_PREFIX, TEXT2PANO_MODEL_ENV
     from ..scenes import list_scenes
+    from ..scenes.catalog import VARIANT_SEP
     from ..scenes.datasets import is_dataset_name
+    from ..scenes.registry import parse_variant
     from ..sources import get_source
     from ..teachers import get_teacher
 
     where = f"suite {suite.path or suite.name}"
-    scenes = {s.name for s in list_scenes()}
+    scenes = {s.name for s in list_scenes() if s.kind != "variant"}
     checked: set = set()
     for row in suite.rows:
         what = f"{where}, row {row.label!r}"
         if row.scene not in scenes and row.scene not in checked:
-            if row.scene.startswith(PROMPT_PREFIX):
+            if VARIANT_SEP in row.scene and not Path(row.scene).exists() and not is_dataset_name(row.scene):
+                try:
+                    parse_variant(row.scene)
+                except PanoreconInputError as e:
+                    raise PanoreconInputError(f"{what}: {e}") from None
+            elif row.scene.startswith(PROMPT_PREFIX):
                 if not os.environ.get(TEXT2PANO_MODEL_ENV):
                     raise PanoreconInputError(
                         f"{what}: scene {row.scene!r} is a prompt: set ${TEXT2PANO_MODEL_ENV} "

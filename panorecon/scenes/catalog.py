@@ -20,3 +20,25 @@ SYNTHETIC_SCENES = {
         "outdoor city plaza: central fountain, stone benches, tiled ground, street lamps, buildings, open space"
     ),
 }
+
+VARIANT_SEP = "@"
+VARIANT_PATTERN = f"NAME{VARIANT_SEP}K"
+
+
+def split_variant(name: str) -> tuple[str, int | None]:
+    """``"bedroom@3"`` -> ("bedroom", 3); a plain synthetic name -> (name, None). Raises ValueError with the
+    reason for anything else (callers turn it into their own input error)."""
+    if VARIANT_SEP not in name:
+        if name not in SYNTHETIC_SCENES:
+            raise ValueError(f"expected a synthetic scene ({', '.join(SYNTHETIC_SCENES)})")
+        return name, None
+    base, _, k = name.rpartition(VARIANT_SEP)
+    if base not in SYNTHETIC_SCENES:
+        raise ValueError(
+            f"a variant {VARIANT_PATTERN} needs NAME one of the synthetic scenes ({', '.join(SYNTHETIC_SCENES)}), "
+            f"not {base!r}"
+        )
+    if not (k.isascii() and k.isdigit()) or int(k) < 1 or str(int(k)) != k:
+        hint = " (a range A..B is for a suite's scene list)" if ".." in k else ""
+        raise ValueError(f"a variant {VARIANT_PATTERN} needs K an integer >= 1 without leading zeros, not {k!r}{hint}")
+    return base, int(k)

@@ -195,11 +195,18 @@ def by_height(stops: list[tuple[float, tuple]], slope_color=None, seed: int = 0,
     return tex
 
 
-def sky_color(directions: np.ndarray, seed: int = 0, cloudiness: float = 0.5) -> np.ndarray:
-    """Sky radiance [M, 3] in [0, 1] for unit directions [M, 3]: horizon-to-zenith gradient plus clouds."""
+SKY_HORIZON = (0.78, 0.86, 0.95)
+SKY_ZENITH = (0.22, 0.45, 0.85)
+
+
+def sky_color(
+    directions: np.ndarray, seed: int = 0, cloudiness: float = 0.5, horizon=SKY_HORIZON, zenith=SKY_ZENITH
+) -> np.ndarray:
+    """Sky radiance [M, 3] in [0, 1] for unit directions [M, 3]: ``horizon``-to-``zenith`` gradient (RGB) plus
+    clouds covering more of the sky as ``cloudiness`` (0..1) grows."""
     z = np.clip(directions[:, 2], -1, 1)
-    horizon = np.array([0.78, 0.86, 0.95])
-    zenith = np.array([0.22, 0.45, 0.85])
+    horizon = np.asarray(horizon, float)
+    zenith = np.asarray(zenith, float)
     t = np.clip(z, 0, 1) ** 0.5
     base = horizon + (zenith - horizon) * t[:, None]
     # clouds: noise on the direction projected onto a virtual cloud layer (stable under any resolution)

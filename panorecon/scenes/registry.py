@@ -1,6 +1,6 @@
-"""Scene registry: every scene by name, synthetic and real, plus any ERP image given by path and any folder
-written by ``panorecon render`` (``rendered:<dir>`` or the folder's path). Only a synthetic scene's build
-imports Open3D."""
+"""Scene registry: every scene by name, synthetic and real, the variants of the synthetic scenes (``bedroom@3``,
+see ``synthetic.py``), plus any ERP image given by path and any folder written by ``panorecon render``
+(``rendered:<dir>`` or the folder's path). Only a synthetic scene's build imports Open3D."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..io import PanoreconInputError
 from .base import Scene
+from .catalog import VARIANT_PATTERN, VARIANT_SEP, split_variant
 
 DEFAULT_SCENE = "bedroom"
 
@@ -19,7 +20,7 @@ class SceneSpec:
     """A named scene and how to build it at a given ERP width (None: the scene's native size)."""
 
     name: str
-    kind: str  # "synthetic" | "real"
+    kind: str  # "synthetic" | "real" | "variant" (the NAME@K pattern: listed, never built under that name)
     has_ground_truth: bool
     description: str
     build: Callable[[int | None], Scene]
@@ -53,9 +54,36 @@ def _ensure_builtin() -> None:
             )
 
 
+def _pattern_build(width: int | None) -> Scene:
+    raise PanoreconInputError(f"scene {VARIANT_PATTERN!r} is a pattern: expected a variant such as bedroom@3")
+
+
+VARIANTS_SPEC = SceneSpec(
+    VARIANT_PATTERN,
+    "variant",
+    True,
+    "variant K >= 1 of a synthetic scene above (bedroom@3): room size, layout, materials, light and sky drawn "
+    "from (NAME, K); a suite names a population as bedroom@1..10",
+    _pattern_build,
+)
+
+
 def list_scenes() -> list[SceneSpec]:
+    """The registered scenes, then one entry standing for all variants of the synthetic scenes (``NAME@K``)."""
     _ensure_builtin()
-    return list(_SCENES.values())
+    return [*_SCENES.values(), VARIANTS_SPEC]
+
+
+def parse_variant(name: str) -> tuple[str, int]:
+    """``"bedroom@3"`` -> ("bedroom", 3). A malformed variant name (``bedroom@0``, ``bedroom@x``, ``nosuch@2``,
+    ``photo.png@2``) raises PanoreconInputError naming it and what was expected."""
+    if VARIANT_SEP not in name:
+        raise PanoreconInputError(f"scene {name!r}: expected a variant {VARIANT_PATTERN}, e.g. bedroom@3")
+    try:
+        base, k = split_variant(name)
+    except ValueError as e:
+        raise PanoreconInputError(f"scene {name!r}: {e}") from None
+    return base, k
 
 
 def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
@@ -91,8 +119,17 @@ def load_scene(name: str, width: int | None = None, depth=None) -> Scene:
                 "expected the colour image (.png, .jpg, ...)"
             )
         return scene_from_image(Path(name), width, depth=depth)
+    if VARIANT_SEP in name:
+        parse_variant(name)
+        if depth is not None:
+            raise PanoreconInputError(
+                f"--depth {depth.path}: scene {name!r} is synthetic and already has its true depth; "
+                "--depth is for real panoramas"
+            )
+        return _build_synthetic(name, width)
     raise PanoreconInputError(
-        f"unknown scene {name!r}: expected one of {', '.join(sorted(_SCENES))}, a dataset panorama "
+        f"unknown scene {name!r}: expected one of {', '.join(sorted(_SCENES))}, a variant {VARIANT_PATTERN} "
+        "(bedroom@3), a dataset panorama "
         "(stanford2d3d:, structured3d:, matterport3d:, panoramas:), the path of an equirectangular image, "
         "or a folder written by `panorecon render`"
     )

@@ -273,3 +273,47 @@ def test_every_shipped_table_suite_names_seeds_and_a_reference_row(tmp_path):
         q = tmp_path / p.name
         q.write_text(re.sub(r"(?m)^reference = .*$", f"reference = {{ label = {last!r} }}", p.read_text()))
         assert load_suite(q).reference == last, p.name
+
+
+POPULATION = "[defaults]\nteacher = 'sim:clean'\niters = 5\nsource = 'fibonacci'\n[grid]\nscene = ['{}', 'beach']\n"
+
+
+def test_a_population_of_variants_expands_to_one_row_per_variant_each_its_own_run(tmp_path):
+    from panorecon.evaluation.suite import resolve_names
+
+    s = load_suite(write(tmp_path, POPULATION.format("bedroom@1..3")))
+    assert [r.scene for r in s.rows] == ["bedroom@1", "bedroom@2", "bedroom@3", "beach"]
+    resolve_names(s)  # every variant name is a scene
+    for key in ("points_key", "train_key", "run_id"):
+        assert len({getattr(r, key)() for r in s.rows}) == 4, key  # bedroom@1 and bedroom@2 are different runs
+    one = load_suite(write(tmp_path, POPULATION.format("bedroom@2..2")))
+    assert [r.scene for r in one.rows] == ["bedroom@2", "beach"]
+    assert one.rows[0].run_id() == s.rows[1].run_id()  # the same variant is the same run
+
+
+@pytest.mark.parametrize(
+    "scene, match",
+    [
+        ("bedroom@3..1", "1 <= A <= B"),
+        ("bedroom@0..2", "1 <= A <= B"),
+        ("bedroom@1..", "NAME@A..B"),
+        ("bedroom@a..b", "NAME@A..B"),
+        ("bedroom@1..2..3", "NAME@A..B"),
+        ("nosuch@1..2", "synthetic scenes"),
+    ],
+)
+def test_a_malformed_population_is_one_error_naming_the_file(tmp_path, scene, match):
+    with pytest.raises(PanoreconInputError, match=match) as e:
+        load_suite(write(tmp_path, POPULATION.format(scene)))
+    msg = str(e.value)
+    assert "s.toml" in msg and (repr(scene) in msg or scene.startswith("nosuch")) and "\n" not in msg
+
+
+@pytest.mark.parametrize("scene", ["bedroom@0", "nosuch@2", "NAME@K"])
+def test_resolve_names_refuses_a_bad_variant_before_anything_runs(tmp_path, scene):
+    from panorecon.evaluation.suite import resolve_names
+
+    s = load_suite(write(tmp_path, POPULATION.format(scene)))
+    with pytest.raises(PanoreconInputError, match=f"{scene!r}") as e:
+        resolve_names(s)
+    assert "s.toml" in str(e.value) and "\n" not in str(e.value)
