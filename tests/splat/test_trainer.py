@@ -90,7 +90,7 @@ def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
     bare = train(scene, pc, TrainConfig(**c, sky="none"), tmp_path / "bare", progress=False)
     assert sky["held-out"]["psnr"] > bare["held-out"]["psnr"] + 1.0
     assert (tmp_path / "sky" / "sky.png").is_file() and not (tmp_path / "bare" / "sky.png").exists()
-    with pytest.raises(ValueError, match="sky="):
+    with pytest.raises(ValueError, match="sky = .*expected one of panorama, none"):
         train(scene, pc, TrainConfig(**c, sky="blue"), tmp_path / "bad", progress=False)
 
 
@@ -117,7 +117,7 @@ def test_every_source_trains_in_front_of_the_panorama_sky(tmp_path):
 )
 def test_bad_trainer_settings_are_one_clear_error_before_anything_is_written(setup, tmp_path, field, value):
     scene, pc, _ = setup
-    with pytest.raises(ValueError, match=f"{field}="):
+    with pytest.raises(ValueError, match=f"{field} = "):
         train(scene, pc, TrainConfig(iters=1, res=16, labels=4, **{field: value}), tmp_path / "bad", progress=False)
     assert not (tmp_path / "bad").exists()
 
@@ -449,7 +449,7 @@ def test_coarse_steps_render_at_half_resolution_then_full(setup, tmp_path, monke
     train(scene, pc, cfg(iters=2, res=30, coarse_until=1.0), tmp_path / "small", depth_fn, progress=False)
     assert [w for w, grad in sizes if grad] == [30, 30]
     for bad in (dict(coarse_until=-0.1), dict(coarse_until=1.5)):
-        with pytest.raises(ValueError, match="coarse_until="):
+        with pytest.raises(ValueError, match="coarse_until = "):
             train(scene, pc, cfg(**bad), tmp_path / "bad", depth_fn, progress=False)
 
 
