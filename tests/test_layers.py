@@ -118,3 +118,30 @@ def test_the_check_sees_every_kind_of_import(tmp_path, file, source, needle):
         assert bad == []
     else:
         assert len(bad) == 1 and bad[0].startswith(needle), bad
+
+
+def argparse_importers(package_dir: Path) -> list[str]:
+    """Modules of ``package_dir`` (relative paths) that import argparse, at any depth."""
+    found = []
+    for path in sorted(package_dir.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
+            if any(n.split(".")[0] == "argparse" for n in names):
+                found.append(str(path.relative_to(package_dir)))
+                break
+    return found
+
+
+def test_only_the_command_line_modules_import_argparse(tmp_path):
+    """The CLI (``cli.py``) and its argparse forms of the checks (``cli_types.py``, which the micro-benchmarks'
+    own ``main``s use too) are the only modules that know argparse; every other one gets a typed config."""
+    assert argparse_importers(ROOT / "panorecon") == ["cli.py", "cli_types.py"]
+    (tmp_path / "a.py").write_text("def f(ns):\n    from argparse import Namespace\n    return Namespace\n")
+    (tmp_path / "b.py").write_text("import json\n")
+    assert argparse_importers(tmp_path) == ["a.py"]
