@@ -316,6 +316,45 @@ def mixed_code_notes(frame: pd.DataFrame) -> list[str]:
     return notes
 
 
+def provenance_markdown(frame: pd.DataFrame) -> str:
+    """What computed the table: the commits (and code digests) of its runs, the device, the library versions and
+    the total compute (CPU hours of the point and training stages, their wall hours, the load average range at
+    the start of the training stages). Columns a results.csv lacks are left out."""
+
+    def counted(col: str) -> str | None:
+        if col not in frame or frame[col].dropna().empty:
+            return None
+        counts = frame[col].dropna().astype(str).value_counts()
+        return ", ".join(f"`{v}` ({n})" for v, n in counts.items())
+
+    lines = []
+    for col, what in (("commit", "commits"), ("code", "code digests"), ("device_name", "device")):
+        said = counted(col)
+        if said:
+            lines.append(f"- {what} (runs): {said}")
+    versions = [c for c in frame.columns if c.startswith("version_")]
+    if versions:
+        said = "; ".join(
+            f"{c.removeprefix('version_')} {', '.join(sorted(frame[c].dropna().astype(str).unique()))}"
+            for c in versions
+        )
+        lines.append(f"- versions: {said}")
+    cpu = [c for c in ("cpu_points", "cpu_train") if c in frame]
+    wall = [c for c in ("sec_points", "sec_train", "sec_eval") if c in frame]
+    if cpu:
+        runs = frame[frame[cpu].notna().any(axis=1)]
+        total = f"- compute: {len(runs)} runs, {runs[cpu].sum().sum() / 3600:.2f} CPU hours"
+        if wall:
+            total += f", {runs[wall].sum().sum() / 3600:.2f} wall hours of their stages"
+        if "load_train" in frame and frame["load_train"].notna().any():
+            total += (
+                f"; load average at the training stages' start {frame['load_train'].min():.1f}–"
+                f"{frame['load_train'].max():.1f}"
+            )
+        lines.append(total)
+    return "## Provenance\n\n" + "\n".join(lines) if lines else ""
+
+
 def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float, per_scene: bool = True) -> None:
     """DIR/results.md: the averaged table, the per-scene table, the paper's numbers, notes on n/a cells."""
     frame = with_seed(frame)
@@ -349,6 +388,9 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
         parts += [budgets, ""]
     for note in mixed_code_notes(frame):
         parts += [note, ""]
+    provenance = provenance_markdown(frame)
+    if provenance:
+        parts += [provenance, ""]
     notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]

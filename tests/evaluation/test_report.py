@@ -52,3 +52,24 @@ def test_pareto_plot_writes_one_png(tmp_path):
     path = tmp_path / "pareto.png"
     pareto_plot(mean, per_run, "sec_total", "psnr_ho", "held-out PSNR (dB)", path, higher_is_better=True)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and not list(tmp_path.glob("*.tmp*"))
+
+
+def test_provenance_names_the_commits_code_and_total_compute():
+    from panorecon.evaluation.report import provenance_markdown
+
+    frame = pd.DataFrame(
+        {
+            "commit": ["aaa", "aaa", "bbb", "aaa"],
+            "code": ["c1", "c1", "c2", "c1"],
+            "version_torch": ["2.13.0"] * 4,
+            "cpu_points": [3600.0, 0.0, 1800.0, None],
+            "cpu_train": [3600.0, 7200.0, 1800.0, None],  # the last row read n/a: no compute
+            "sec_points": [10.0, 0.0, 0.0, None],
+            "sec_train": [3590.0, 3600.0, 0.0, None],
+            "load_train": [1.0, 2.5, 0.5, None],
+        }
+    )
+    md = provenance_markdown(frame)
+    assert "`aaa` (3), `bbb` (1)" in md and "`c1` (3), `c2` (1)" in md and "torch 2.13.0" in md
+    assert "3 runs, 5.00 CPU hours, 2.00 wall hours" in md and "0.5–2.5" in md
+    assert provenance_markdown(pd.DataFrame({"scene": ["x"]})) == ""
