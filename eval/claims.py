@@ -76,6 +76,8 @@ def _cell(c) -> dict:
         "new": iv(c.new),
         "verdict_these": c.verdict_these,
         "verdict_new": c.verdict_new,
+        "to_resolve_these": c.to_resolve_these,
+        "to_resolve_new": c.to_resolve_new,
         "pairs": c.pairs,
     }
 
@@ -119,16 +121,21 @@ def judge(tables: Path, step: int | None = None) -> list[dict]:
 
 
 def _range(cells: dict) -> str:
-    """The differences of a claim as 'row: −0.12 [−0.20, −0.04]; ...' (these scenes)."""
+    """The differences of a claim as 'row −0.12 [−0.20, −0.04]; ...' (these scenes), each unresolved one with the
+    scenes × seeds the statistics layer says would resolve it (80 % power), e.g. '(needs 1 × 12)'."""
     parts = []
     for label, c in cells.items():
         t = c["these"]
         if t is None:
             parts.append(f"{label} n/a")
-        elif math.isnan(t["low"]):  # one pair per scene: no interval over seeds
-            parts.append(f"{label} {t['estimate']:+.2f}")
-        else:
-            parts.append(f"{label} {t['estimate']:+.2f} [{t['low']:+.2f}, {t['high']:+.2f}]")
+            continue
+        text = f"{label} {t['estimate']:+.2f}"
+        if not math.isnan(t["low"]):  # one pair per scene: no interval over seeds
+            text += f" [{t['low']:+.2f}, {t['high']:+.2f}]"
+        need = c.get("to_resolve_these", "n/a")
+        if c["verdict_these"] == "not resolved" and need not in ("n/a", "resolved"):
+            text += f" (needs {need})"
+        parts.append(text)
     return "; ".join(parts)
 
 
