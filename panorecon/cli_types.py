@@ -45,7 +45,21 @@ def cli_check(check):
         return _FloatIn(check.lo, check.hi, check.what, check.expect)
     if isinstance(check, C.FiniteVector):
         return _FiniteVector(check.n, check.what)
-    return check
+    return _CheckedText(check)
+
+
+class _CheckedText:
+    """Any other check (text -> value, CheckError when refused) with its CheckError as argparse's one line."""
+
+    def __init__(self, check):
+        self.check = check
+        self.__name__ = getattr(check, "__name__", "value")
+
+    def __call__(self, text: str):
+        try:
+            return self.check(text)
+        except C.CheckError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def finite_vector(n: int, what: str = "vector") -> _FiniteVector:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from . import checks as C
 from .checks import nest, opt
+from .device import DEVICE_NAME
 from .splat.trainer import TrainConfig
 from .teachers.spec import TEACHER_SPEC, TeacherSpec
 
@@ -59,7 +60,12 @@ TEACHER_HELP = (
 
 
 def _device() -> dataclasses.Field:
-    return opt("auto", "auto (CUDA when present), cpu or cuda[:K]: where fusion's CG and training run", suite=False)
+    return opt(
+        "auto",
+        "auto (CUDA when present), cpu or cuda[:K]: where fusion's CG and training run",
+        check=DEVICE_NAME,
+        suite=False,
+    )
 
 
 def _out_dir(writes: tuple[str, ...], help: str = "output folder", default=None):

@@ -6,12 +6,33 @@ Shared by every layer that holds torch tensors (fusion's CG solve, the trainer, 
 from __future__ import annotations
 
 import platform
+import re
 
 import torch
 
+from . import checks as C
 from .io import PanoreconInputError
 
 DEVICES = ("auto", "cpu", "cuda")
+
+
+class DeviceName:
+    """The check of a ``--device`` setting (``checks.opt(check=...)``): ``auto``, ``cpu``, ``cuda`` or
+    ``cuda:K``, checked where the command line is read; whether this machine has that device is
+    ``resolve_device``'s question, asked once when the command starts."""
+
+    __name__ = "device"
+
+    def __call__(self, text: str) -> str:
+        self.check(text)
+        return text
+
+    def check(self, value) -> None:
+        if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", str(value)):
+            raise C.CheckError(f"{value!r} is not a device; expected one of {', '.join(DEVICES)} (or cuda:K)")
+
+
+DEVICE_NAME = DeviceName()
 
 
 def resolve_device(name: str | torch.device = "auto") -> torch.device:

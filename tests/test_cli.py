@@ -192,7 +192,10 @@ def test_train_command(tmp_path, capsys):
     [
         (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "cuda"], "--device cuda"),
         (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--backend", "gsplat"], "--backend gsplat"),
-        (["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "gpu"], "--device 'gpu'"),
+        (
+            ["train", "bedroom", "--source", "fibonacci", "--out", "X", "--device", "gpu"],
+            "argument --device: 'gpu' is not a device",
+        ),
         (["points", "bedroom", "--source", "fibonacci", "--out", "X/c.ply", "--device", "cuda"], "--device cuda"),
         (["ablate", "eval/suites/quick.toml", "--out", "X", "--device", "cuda"], "--device cuda"),
         (["bench", "--quick", "--device", "cuda", "--out", "X/b.json"], "--device cuda"),
