@@ -143,20 +143,12 @@ def scene(text: str) -> PathArg:
     return PathArg.make(text, "in", "file", paths=(text,) if os.path.exists(text) else ())
 
 
-class SpecArg:
+class SpecArg(_CheckedText):
     """A spec option (a teacher spec): its setting's check parses it (a malformed one is argparse's one line,
     before any work); a spec that names an existing file or folder makes it an input (``path_collisions``)."""
 
-    def __init__(self, check):
-        self.check = check
-        self.__name__ = getattr(check, "__name__", "spec")
-
     def __call__(self, text: str) -> PathArg:
-        try:
-            spec = self.check(text)
-        except C.CheckError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-        path = getattr(spec, "path", None)
+        path = getattr(super().__call__(text), "path", None)
         return PathArg.make(text, "in", "file", paths=(path,) if path and os.path.exists(path) else ())
 
 
