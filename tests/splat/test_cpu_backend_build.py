@@ -35,6 +35,26 @@ def test_a_lock_left_by_a_killed_build_is_removed_before_building(tmp_path, monk
     assert seen == {"lock_present": False, "directory": str(stale.parent)}
 
 
+def test_torch_builds_with_the_ninja_package_whatever_ninja_path_finds_first(tmp_path, monkeypatch):
+    """Two ninja versions discard each other's build log, and then every object is rebuilt: the build runs with
+    the ``ninja`` package's binary first on PATH, and PATH is as it was afterwards."""
+    ninja = pytest.importorskip("ninja")
+    monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))
+    monkeypatch.setenv("PATH", "/usr/bin:/bin")
+    monkeypatch.setattr(cpu_backend, "_module", None)
+    monkeypatch.setattr(cpu_backend, "_error", None)
+    seen = {}
+
+    def fake_load(name, sources, build_directory, **kwargs):
+        seen["ninja"] = shutil.which("ninja")
+        return "module"
+
+    monkeypatch.setattr(torch.utils.cpp_extension, "load", fake_load)
+    assert cpu_backend.load() == "module"
+    assert seen["ninja"] == shutil.which("ninja", path=ninja.BIN_DIR)
+    assert os.environ["PATH"] == "/usr/bin:/bin"
+
+
 def test_a_build_in_progress_in_another_process_is_waited_for_not_broken(tmp_path, monkeypatch):
     """While another live process holds the build lock, its torch ``lock`` file is left alone: load waits."""
     monkeypatch.setenv("PANORECON_CACHE", str(tmp_path))

@@ -66,6 +66,25 @@ def _exclusive_build(directory: Path):
         yield
 
 
+@contextlib.contextmanager
+def _one_ninja():
+    """The ``ninja`` package's binary first on PATH while torch builds, when that package is installed. Ninja
+    versions keep incompatible build logs (1.11's and 1.13's each discard the other's), and a build directory
+    whose log is discarded is rebuilt from scratch, minutes on 2 cores: without this, a load from an activated
+    environment and one from outside it (/usr/bin/ninja) would rebuild at every switch."""
+    try:
+        import ninja
+    except ImportError:
+        yield
+        return
+    path = os.environ.get("PATH", "")
+    os.environ["PATH"] = os.pathsep.join([ninja.BIN_DIR, path])
+    try:
+        yield
+    finally:
+        os.environ["PATH"] = path
+
+
 def load(verbose: bool = False):
     """The compiled module, or None (with the reason logged once) when it cannot be built here."""
     global _module, _error
@@ -75,7 +94,7 @@ def load(verbose: bool = False):
         from torch.utils.cpp_extension import load as load_ext
 
         directory = build_dir()
-        with _exclusive_build(directory):
+        with _exclusive_build(directory), _one_ninja():
             _module = load_ext(
                 name="panorecon_rasterize_cpu",
                 sources=[str(p) for p in _SOURCES],
