@@ -86,11 +86,20 @@ def render(cfg: K.RenderConfig, claimed: bool = False) -> int:
         radius = scene.world.free_space_radius()
         for res in cfg.heldout_res:
             rec = RecordingWorld(scene.world)
-            make_heldout_views(dataclasses.replace(scene, world=rec), cfg.heldout, res, train.fov_deg, train.seed)
+            for seed in cfg.heldout_seeds:
+                make_heldout_views(dataclasses.replace(scene, world=rec), cfg.heldout, res, train.fov_deg, seed)
             save_heldout(out, rec.cameras, rec.renders)
-        heldout_note = f", {cfg.heldout} held-out views at {'/'.join(map(str, cfg.heldout_res))} px"
+        seeds = f" for seed{'s' * (len(cfg.heldout_seeds) > 1)} {', '.join(map(str, cfg.heldout_seeds))}"
+        heldout_note = f", {cfg.heldout} held-out views at {'/'.join(map(str, cfg.heldout_res))} px{seeds}"
     about = ("name", "kind", "description", "distance_kind", "meta")
-    write_json(out / "scene.json", {**{k: getattr(scene, k) for k in about}, "free_space_radius": radius})
+    write_json(
+        out / "scene.json",
+        {
+            **{k: getattr(scene, k) for k in about},
+            "free_space_radius": radius,
+            "heldout_seeds": list(cfg.heldout_seeds) if radius is not None else [],
+        },
+    )
     print(
         f"{scene.name}: {scene.width}x{scene.height} rendered in {seconds:.2f} s{heldout_note} -> {out}"
         + ("" if scene.distance is not None else " (no depth: distance.npy not written)")
@@ -312,7 +321,7 @@ def ablate(cfg: K.AblateConfig) -> int:
     if cfg.root is not None and not Path(cfg.root).is_dir():
         raise PanoreconInputError(f"--root {cfg.root}: no such folder (expected a dataset root)")
     overrides = dict(parse_override(t) for t in cfg.set)
-    suites = [load_suite(s, cfg.root, overrides) for s in cfg.suite]
+    suites = [load_suite(s, cfg.root, overrides, cfg.scene_dir) for s in cfg.suite]
     stems = [s.name for s in suites]
     if len(set(stems)) != len(stems):
         raise PanoreconInputError(f"ablate: suites {', '.join(cfg.suite)} share a file name; rename one")

@@ -195,6 +195,12 @@ class RenderConfig:
     heldout_res: tuple[int, ...] = opt(
         (128,), "sizes of the recorded held-out views (each a `train --res`)", check=C.LABEL_RES, many=True
     )
+    heldout_seeds: tuple[int, ...] = opt(
+        (0,),
+        "training seeds whose held-out views to record (each seed draws its own cameras; a suite's seeds)",
+        check=C.SEED,
+        many=True,
+    )
 
     def __post_init__(self):
         C.validate(self)
@@ -304,6 +310,13 @@ class AblateConfig:
         MAX_RUNS, "refuse a suite that expands to more runs than this", check=C.int_in(1, None, "run count")
     )
     root: str | None = opt(None, "dataset root for a suite's {root} (default $PANORECON_DATASET_ROOT)", role="in")
+    scene_dir: str | None = opt(
+        None,
+        "read each suite scene NAME from its `panorecon render` folder DIR/NAME instead of building it (a machine "
+        "without Open3D, e.g. a GPU machine); the rows' scene is then the folder, with its own runs",
+        role="in",
+        metavar="DIR",
+    )
     from_csv: str | None = opt(
         None,
         "re-render results.md, report.html and plots from a results.csv into --out; nothing is run",

@@ -227,6 +227,40 @@ def _expand_scene(scene: str, path: Path) -> list[str]:
     return found
 
 
+def _rendered_folder(scene: str, scene_dir: Path, spec: dict, seeds: list[int], path: Path) -> str:
+    """``scene_dir/scene``, checked to be a ``panorecon render`` folder at the row's width whose held-out views
+    were recorded at the row's label size for every seed (what ``scenes.rendered.load_rendered`` replays)."""
+    import json
+
+    from PIL import Image
+
+    from ..scenes.rendered import HELDOUT_FILE
+    from ..splat.trainer import TrainConfig
+
+    folder, train = scene_dir / scene, TrainConfig()
+    width, heldout, res = int(spec.get("width", 512)), spec.get("heldout", train.heldout), spec.get("res", train.res)
+    make = (
+        f"write it with `panorecon render {scene} --width {width} --heldout {heldout} --heldout-res {res} "
+        f"--heldout-seeds {' '.join(map(str, seeds))} --out {folder}`"
+    )
+    if not (folder / "scene.json").is_file() or not (folder / "pano.png").is_file():
+        raise PanoreconInputError(f"suite {path}: --scene-dir: {folder} is not a `panorecon render` folder; {make}")
+    with Image.open(folder / "pano.png") as im:
+        if im.width != width:
+            raise PanoreconInputError(
+                f"suite {path}: --scene-dir: {folder} is {im.width} px wide, the rows {width}; {make}"
+            )
+    if heldout:
+        recorded = json.loads((folder / "scene.json").read_text()).get("heldout_seeds", [0])
+        missing = [s for s in seeds if s not in recorded]
+        if not (folder / HELDOUT_FILE.format(res=res)).is_file() or missing:
+            raise PanoreconInputError(
+                f"suite {path}: --scene-dir: {folder} has no held-out views at {res} px for seed(s) "
+                f"{', '.join(map(str, missing or seeds))}; {make}"
+            )
+    return str(folder)
+
+
 def _expand_variants(scene: str, path: Path) -> list[str]:
     """``bedroom@1..10`` -> ["bedroom@1", ..., "bedroom@10"] (both ends included), each name checked."""
     from ..scenes.catalog import VARIANT_SEP
@@ -262,11 +296,13 @@ def parse_override(text: str) -> tuple[str, object]:
     return key.strip(), parsed
 
 
-def load_suite(path, root: str | None = None, overrides: dict | None = None) -> Suite:
+def load_suite(path, root: str | None = None, overrides: dict | None = None, scene_dir: str | None = None) -> Suite:
     """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file).
     ``root``: the dataset root for ``{root}`` (default $PANORECON_DATASET_ROOT). ``overrides``: settings that
     replace the suite's [defaults] (e.g. the paper's iters = 10000 on a GPU), checked as [defaults] are; a key
-    that the suite's [grid] or [[variants]] sets is refused (the override would be silently lost)."""
+    that the suite's [grid] or [[variants]] sets is refused (the override would be silently lost).
+    ``scene_dir``: each scene NAME is read from its ``panorecon render`` folder ``scene_dir/NAME`` (a machine
+    without Open3D); the rows' scene is that folder's path, so their runs and cache entries are their own."""
     path = Path(path)
     root = root or os.environ.get(ROOT_ENV)
     if not path.is_file():
@@ -322,6 +358,8 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None) -> 
                 raise PanoreconInputError(f"suite {path}: depth_scale / depth_kind without a depth file")
             depth = (depth, spec.get("depth_scale"), spec.get("depth_kind", "distance")) if depth else None
             for scene in _expand_scene(_with_root(spec["scene"], root, path), path):
+                if scene_dir is not None:
+                    scene = _rendered_folder(scene, Path(scene_dir), spec, seeds or [spec.get("seed", 0)], path)
                 for seed in seeds or [spec.get("seed", 0)]:
                     rows.append(
                         Row(

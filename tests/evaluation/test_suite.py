@@ -317,3 +317,25 @@ def test_resolve_names_refuses_a_bad_variant_before_anything_runs(tmp_path, scen
     with pytest.raises(PanoreconInputError, match=f"{scene!r}") as e:
         resolve_names(s)
     assert "s.toml" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_scene_dir_reads_each_scene_from_its_render_folder_checked_before_anything_runs(tmp_path):
+    from panorecon.cli import main
+
+    folder = tmp_path / "scenes" / "bedroom"
+    args = ["render", "bedroom", "--width", "64", "--heldout", "2", "--heldout-res", "16", "--heldout-seeds", "0", "1"]
+    assert main([*args, "--out", str(folder)]) == 0
+    text = '[defaults]\nwidth = {w}\nres = {r}\nheldout = 2\nsource = "fibonacci"\n[grid]\nscene = ["{s}"]\n'
+    path = write(tmp_path, "seeds = [0, 1]\n" + text.format(w=64, r=16, s="bedroom"))
+    s = load_suite(path, scene_dir=str(tmp_path / "scenes"))
+    assert {r.scene for r in s.rows} == {str(folder)} and [r.seed for r in s.rows] == [0, 1]
+    assert {r.run_id() for r in s.rows}.isdisjoint(r.run_id() for r in load_suite(path).rows)
+    for seeds, w, r, scene, match in [
+        ("[0, 1]", 64, 16, "beach", "beach is not a `panorecon render` folder"),
+        ("[0, 1]", 128, 16, "bedroom", "64 px wide, the rows 128"),
+        ("[0, 1]", 64, 32, "bedroom", "no held-out views at 32 px"),
+        ("[2]", 64, 16, "bedroom", r"for seed\(s\) 2; write it with `panorecon render bedroom .*--heldout-seeds 2"),
+    ]:
+        bad = write(tmp_path, f"seeds = {seeds}\n" + text.format(w=w, r=r, s=scene))
+        with pytest.raises(PanoreconInputError, match=match):
+            load_suite(bad, scene_dir=str(tmp_path / "scenes"))

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from panorecon.cli import main
@@ -129,3 +130,40 @@ def test_real_panorama_and_rendered_folder_train_without_open3d(rendered, tmp_pa
     m = json.loads((tmp_path / "syn" / "metrics.json").read_text())
     assert isinstance(m["held-out"]["psnr"], float) and m["device"] == "cpu"
     assert m["peak_gpu_memory_mb"].startswith("n/a")
+
+
+def test_held_out_views_are_recorded_for_each_seed_asked(tmp_path):
+    folder = tmp_path / "bedroom"
+    args = ["render", "bedroom", "--width", "128", "--heldout", "3", "--heldout-res", "16"]
+    assert main([*args, "--heldout-seeds", "0", "2", "--out", str(folder)]) == 0
+    assert json.loads((folder / "scene.json").read_text())["heldout_seeds"] == [0, 2]
+    s, orig = load_scene(str(folder)), load_scene("bedroom", 128)
+    for seed in (0, 2):
+        for va, vb in zip(make_heldout_views(s, 3, 16, seed=seed), make_heldout_views(orig, 3, 16, seed=seed)):
+            np.testing.assert_array_equal(va.rgb, vb.rgb)
+            np.testing.assert_array_equal(va.camera.viewmat, vb.camera.viewmat)
+    with pytest.raises(PanoreconInputError, match="no recorded true view"):
+        make_heldout_views(s, 3, 16, seed=1)
+
+
+def test_ablate_runs_a_suite_on_rendered_folders_without_open3d(tmp_path):
+    """``ablate --scene-dir``: the suite's scenes read from their render folders (seed 1's held-out views
+    recorded), every import of open3d failing; the rows' scene is the folder."""
+    folders = tmp_path / "scenes"
+    render = ["render", "bedroom", "--width", "128", "--heldout", "3", "--heldout-res", "16", "--heldout-seeds", "1"]
+    assert main([*render, "--out", str(folders / "bedroom")]) == 0
+    suite = tmp_path / "t7.toml"
+    suite.write_text(
+        'title = "t"\nrows = ["strategy"]\nseeds = [1]\nreference = { strategy = "adaptive" }\n'
+        '[defaults]\nwidth = 128\nres = 16\nlabels = 4\niters = 4\nheldout = 3\nviews = 6\nsource = "fibonacci"\n'
+        'teacher = "sim:relative"\n[grid]\nscene = ["bedroom"]\nstrategy = ["default", "adaptive"]\n'
+    )
+    run = _run_without_open3d(
+        ["ablate", str(suite), "--scene-dir", str(folders), "--out", str(tmp_path / "out"), "--no-progress"],
+        tmp_path,
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    frame = pd.read_csv(tmp_path / "out" / "results.csv")
+    assert sorted(frame["strategy"]) == ["adaptive", "default"]
+    assert set(frame["scene"]) == {str(folders / "bedroom")} and set(frame["seed"]) == {1}
+    assert frame["psnr_ho"].notna().all()
