@@ -227,8 +227,8 @@ def _expand_scene(scene: str, path: Path) -> list[str]:
     return found
 
 
-def _rendered_folder(scene: str, scene_dir: Path, spec: dict, seeds: list[int], path: Path) -> str:
-    """``scene_dir/scene``, checked to be a ``panorecon render`` folder at the row's width whose held-out views
+def _rendered_folder(scene: str, scene_dir: Path, spec: dict, width: int, seeds: list[int], path: Path) -> str:
+    """``scene_dir/scene``, checked to be a ``panorecon render`` folder ``width`` px wide whose held-out views
     were recorded at the row's label size for every seed (what ``scenes.rendered.load_rendered`` replays)."""
     import json
 
@@ -238,7 +238,7 @@ def _rendered_folder(scene: str, scene_dir: Path, spec: dict, seeds: list[int], 
     from ..splat.trainer import TrainConfig
 
     folder, train = scene_dir / scene, TrainConfig()
-    width, heldout, res = int(spec.get("width", 512)), spec.get("heldout", train.heldout), spec.get("res", train.res)
+    heldout, res = spec.get("heldout", train.heldout), spec.get("res", train.res)
     make = (
         f"write it with `panorecon render {scene} --width {width} --heldout {heldout} --heldout-res {res} "
         f"--heldout-seeds {' '.join(map(str, seeds))} --out {folder}`"
@@ -357,14 +357,15 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None, sce
             if depth is None and ("depth_scale" in spec or "depth_kind" in spec):
                 raise PanoreconInputError(f"suite {path}: depth_scale / depth_kind without a depth file")
             depth = (depth, spec.get("depth_scale"), spec.get("depth_kind", "distance")) if depth else None
+            width, row_seeds = int(spec.get("width", 512)), seeds or [spec.get("seed", 0)]
             for scene in _expand_scene(_with_root(spec["scene"], root, path), path):
                 if scene_dir is not None:
-                    scene = _rendered_folder(scene, Path(scene_dir), spec, seeds or [spec.get("seed", 0)], path)
-                for seed in seeds or [spec.get("seed", 0)]:
+                    scene = _rendered_folder(scene, Path(scene_dir), spec, width, row_seeds, path)
+                for seed in row_seeds:
                     rows.append(
                         Row(
                             scene=scene,
-                            width=int(spec.get("width", 512)),
+                            width=width,
                             source=spec["source"],
                             teacher=spec.get("teacher"),
                             views=spec.get("views"),
