@@ -137,7 +137,8 @@ def suite_out_dirs(suites: list[Suite], out: Path) -> list[Path]:
 
 def finished_rows(paths: list[Path]) -> dict[str, dict]:
     """run_id -> its results.csv record, over every ``paths`` file that exists (a row that read n/a is left
-    out: it is cheap to try again, and it may run on another machine). A row in several files keeps the first."""
+    out: it is cheap to try again, and it may run on another machine; a "failed: ..." row is the run's outcome
+    and kept). A row in several files keeps the first."""
     found: dict[str, dict] = {}
     for p in paths:
         if not p.is_file():
@@ -147,7 +148,7 @@ def finished_rows(paths: list[Path]) -> dict[str, dict]:
             continue
         for rec in frame.to_dict("records"):
             note = rec.get("unavailable_note")
-            if isinstance(note, str) and note:
+            if isinstance(note, str) and note.startswith("n/a"):
                 continue
             found.setdefault(rec["run_id"], rec)
     return found

@@ -49,25 +49,40 @@ def _fmt(v, f: str) -> str:
     return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f.format(v)
 
 
+def _text(v) -> str:
+    """A text cell of a results frame: "" for a missing one (NaN in a column read back from CSV)."""
+    return v if isinstance(v, str) else ""
+
+
 def with_seed(frame: pd.DataFrame) -> pd.DataFrame:
     """``frame`` with a ``seed`` column (0 where results predate seeds)."""
     return frame if "seed" in frame else frame.assign(seed=0)
 
 
+def without_measurement(frame: pd.DataFrame) -> pd.Series:
+    """Per run: True where it has no measurement, its ``unavailable_note`` saying why ("n/a: ..." cannot run
+    here, "failed: ..." ran and gave nothing)."""
+    if "unavailable_note" not in frame:
+        return pd.Series(False, index=frame.index)
+    return frame["unavailable_note"].map(_text) != ""
+
+
 def average_table(frame: pd.DataFrame) -> pd.DataFrame:
     """Mean over scenes (each scene's mean over its seeds) of every numeric table column, one row per label (in
-    the suite's order), with ``scenes``, ``seeds`` (most seeds of a scene) and ``<column>_hw``: the half-width
-    of the mean's 95 % interval over seeds with the scenes fixed (NaN with one seed, and for counts;
-    ``stats.these_scenes``)."""
+    the suite's order), with ``scenes``, ``seeds`` (most seeds of a scene), ``runs`` (all three counting runs
+    with a measurement) and ``<column>_hw``: the half-width of the mean's 95 % interval over seeds with the
+    scenes fixed (NaN with one seed, and for counts; ``stats.these_scenes``)."""
     from .stats import DIRECTION, run_values, these_scenes
 
     frame = with_seed(frame)
     cols = [c for c, *_ in TABLE_COLUMNS if c in frame]
     order = list(dict.fromkeys(frame["label"]))
+    measured = frame[~without_measurement(frame)]
     rows = []
     for label in order:
         g = frame[frame["label"] == label]
-        rec = {"scenes": g["scene"].nunique(), "seeds": int(g.groupby("scene")["seed"].nunique().max())}
+        seeds = measured[measured["label"] == label].groupby("scene")["seed"].nunique()
+        rec = {"scenes": len(seeds), "seeds": int(seeds.max()) if len(seeds) else 0, "runs": int(seeds.sum())}
         for c in cols:
             iv = these_scenes(run_values(g, c))
             # counts (points, Gaussians, panoramas) are shown without one
@@ -76,9 +91,12 @@ def average_table(frame: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, index=pd.Index(order, name="label"))
 
 
-def _design_cell(r) -> str:
+def design_cell(r) -> str:
+    """The "scenes × seeds" cell of an ``average_table`` row, with its runs where some (scene, seed) has none."""
     seeds = int(r.get("seeds", 1)) if "seeds" in r and r["seeds"] == r["seeds"] else 1
-    return f"{int(r['scenes'])} × {seeds}" if seeds > 1 else str(int(r["scenes"]))
+    cell = f"{int(r['scenes'])} × {seeds}" if seeds > 1 else str(int(r["scenes"]))
+    runs = r.get("runs", math.nan)
+    return cell + f" ({int(runs)} runs)" if runs == runs and runs < int(r["scenes"]) * seeds else cell
 
 
 def markdown_table(table: pd.DataFrame, label_header: str) -> str:
@@ -99,7 +117,7 @@ def markdown_table(table: pd.DataFrame, label_header: str) -> str:
             if cell != "n/a" and not math.isnan(hw):
                 cell += f" ± {_fmt(hw, f)}"
             cells.append(cell)
-        lines.append("| " + " | ".join([str(label), _design_cell(r)] + cells) + " |")
+        lines.append("| " + " | ".join([str(label), design_cell(r)] + cells) + " |")
     return "\n".join(lines)
 
 
@@ -355,6 +373,23 @@ def provenance_markdown(frame: pd.DataFrame) -> str:
     return "## Provenance\n\n" + "\n".join(lines) if lines else ""
 
 
+def failed_runs_markdown(frame: pd.DataFrame) -> str:
+    """The runs that ran and gave nothing ("failed: ..." notes), grouped by row and scene with their seeds; ""
+    when none failed."""
+    if "unavailable_note" not in frame:
+        return ""
+    frame = with_seed(frame)
+    notes = frame["unavailable_note"].map(_text)
+    failed = frame[notes.str.startswith("failed:")]
+    if not len(failed):
+        return ""
+    lines = ["Failed runs (no measurement; left out of the means and of the paired differences):", ""]
+    for (label, scene, note), g in failed.groupby(["label", "scene", "unavailable_note"], sort=False):
+        seeds = ", ".join(str(int(x)) for x in sorted(g["seed"]))
+        lines.append(f"- {label}, {scene}, seed{'s' if len(g) > 1 else ''} {seeds}: {note.removeprefix('failed: ')}")
+    return "\n".join(lines)
+
+
 def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float, per_scene: bool = True) -> None:
     """DIR/results.md: the averaged table, the per-scene table, the paper's numbers, notes on n/a cells."""
     frame = with_seed(frame)
@@ -391,11 +426,16 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
     provenance = provenance_markdown(frame)
     if provenance:
         parts += [provenance, ""]
-    notes = sorted({v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique()})
+    failed = failed_runs_markdown(frame)
+    if failed:
+        parts += [failed, ""]
+    notes = sorted(
+        {v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique() if v.startswith("n/a")}
+    )
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]
     if "warning" in frame:
-        flagged = frame[frame["warning"].fillna("").astype(str) != ""]
+        flagged = frame[frame["warning"].map(_text) != ""]
         for _, r in flagged.iterrows():
             parts += [f"**WARNING** ({r['label']}, {r['scene']}): {r['warning']}", ""]
     paper = _paper_block(suite.paper)

@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..io import atomic_write
-from .report import COMPARISON_NOTE, TABLE_COLUMNS, average_table, comparison_tables, with_seed
+from .report import COMPARISON_NOTE, TABLE_COLUMNS, average_table, comparison_tables, design_cell, with_seed
 
 CSS = """body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#222;max-width:1400px}
 table{border-collapse:collapse;margin:8px 0 20px}th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}
@@ -60,9 +60,8 @@ def _table(table: pd.DataFrame, label_header: str) -> str:
         "</tr></thead><tbody>",
     ]
     for label, r in table.iterrows():
-        n = int(r["scenes"]) * int(r.get("seeds", 1))
-        design = f"{int(r['scenes'])} × {int(r['seeds'])}" if seeded else str(int(r["scenes"]))
-        cells = [f"<td>{html.escape(str(label))}</td>", f"<td data-v='{n}'>{design}</td>"]
+        n = int(r["runs"]) if "runs" in r else int(r["scenes"]) * int(r.get("seeds", 1))
+        cells = [f"<td>{html.escape(str(label))}</td>", f"<td data-v='{n}'>{html.escape(design_cell(r))}</td>"]
         for c, _, f in heads:
             v, hw = r[c], r.get(f"{c}_hw", math.nan)
             ok = v is not None and not (isinstance(v, float) and math.isnan(v))

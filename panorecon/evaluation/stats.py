@@ -8,8 +8,8 @@ Two questions, two intervals (both Student t, float64):
 
 - **these scenes** (scenes fixed, seeds random): could other seeds move the number? The stratified mean's
   standard error ``sqrt(sum_s v_s / n_s) / S`` (``v_s`` the sample variance over scene ``s``'s ``n_s`` seeds)
-  with Welch-Satterthwaite degrees of freedom. Needs >= 2 seeds in every scene. Also the interval of a row's
-  own mean.
+  with Welch-Satterthwaite degrees of freedom. Needs >= 2 seeds in some scene; a scene left with one (its other
+  runs failed) takes the pooled within-scene variance. Also the interval of a row's own mean.
 - **new scenes** (scenes random, seeds nested): would it hold on other scenes like these? A one-sample t
   interval over the per-scene means (``scipy.stats.ttest_1samp``), ``S - 1`` degrees of freedom: exact for
   normal scene effects at any number of seeds. Needs >= 2 scenes (2 scenes give 1 degree of freedom,
@@ -83,21 +83,39 @@ def _by_scene(values) -> list[np.ndarray]:
     return [g[np.isfinite(g)] for g in groups if np.isfinite(g).any()]
 
 
+def _seed_variances(groups: list[np.ndarray]) -> np.ndarray | None:
+    """Each scene's sample variance over its seeds; a scene with one value (its other runs failed) takes the
+    pooled within-scene variance of the others. None when no scene has two values."""
+    multi = [g for g in groups if len(g) >= 2]
+    if not multi:
+        return None
+    pooled = sum((len(g) - 1) * g.var(ddof=1) for g in multi) / sum(len(g) - 1 for g in multi)
+    return np.array([g.var(ddof=1) if len(g) >= 2 else pooled for g in groups])
+
+
 def these_scenes(values, level: float = LEVEL) -> Interval:
     """Mean over scenes of each scene's mean over seeds, with the stratified t interval (scenes fixed, seeds
-    random). ``values``: columns scene, value (one row per run), or one array of values per scene."""
+    random). ``values``: columns scene, value (one row per run), or one array of values per scene. A scene with
+    one value borrows the pooled variance of the scenes with two or more (``_seed_variances``); the degrees of
+    freedom are Welch-Satterthwaite's over the independent per-scene variances that enter."""
     groups = _by_scene(values)
     if not groups:
         return Interval(math.nan, reason="no value")
     est = float(np.mean([g.mean() for g in groups]))
-    if min(len(g) for g in groups) < 2:
+    v = _seed_variances(groups)
+    if v is None:
         return Interval(est, reason="one seed: an interval over seeds needs seeds = [...] with >= 2")
-    s = len(groups)
-    a = np.array([g.var(ddof=1) / len(g) / s**2 for g in groups])
-    se = math.sqrt(a.sum())
+    s, n = len(groups), np.array([len(g) for g in groups])
+    se = math.sqrt(float(np.sum(v / n)) / s**2)
     if se == 0:  # the seeds do not change it: exact on these scenes
         return Interval(est, est, est, math.inf)
-    df = a.sum() ** 2 / np.sum([ai**2 / (len(g) - 1) for ai, g in zip(a, groups)])
+    # se^2 = sum over scenes with >= 2 values of c_s v_s: their own 1 / n_s, plus their share of the pooled
+    # variance that the k one-value scenes use (weight (n_s - 1) / sum(n - 1) each)
+    multi = n >= 2
+    k, pooled_df = int((~multi).sum()), float(np.sum(n[multi] - 1))
+    c = (1 / n[multi] + k * (n[multi] - 1) / pooled_df) / s**2
+    terms = c * v[multi]
+    df = terms.sum() ** 2 / np.sum(terms**2 / (n[multi] - 1))
     h = stats.t.ppf(0.5 + level / 2, df) * se
     return Interval(est, est - h, est + h, float(df))
 
@@ -177,10 +195,10 @@ def needed_seeds(diffs) -> int | None:
     """Seeds per scene (on these scenes) for the observed mean difference to be resolved with 80 % power, from
     each scene's spread over seeds; None when there is no spread to go by or no difference."""
     groups = _by_scene(diffs)
-    if not groups or min(len(g) for g in groups) < 2:
+    v = _seed_variances(groups) if groups else None
+    if v is None:
         return None
     est = abs(np.mean([g.mean() for g in groups]))
-    v = np.array([g.var(ddof=1) for g in groups])
     if est == 0 or v.sum() == 0:
         return None if est == 0 else 2
     s = len(groups)
@@ -205,7 +223,8 @@ def needed_scenes(diffs, seeds: int) -> int | None:
     if est == 0:
         return None
     n = np.array([len(g) for g in groups])
-    within = float(np.mean([g.var(ddof=1) for g in groups])) if n.min() >= 2 else 0.0
+    v = _seed_variances(groups)
+    within = float(np.mean(v)) if v is not None else 0.0
     between = max(0.0, means.var(ddof=1) - within * np.mean(1 / n))
     per_scene = between + within / seeds
     if per_scene == 0:

@@ -198,7 +198,9 @@ def fusion_config_for(device) -> FusionConfig | None:
 def run_points(
     cache: StageCache, row: Row, key: str | None = None, provenance: dict | None = None, device=None
 ) -> dict:
-    """The point source's record: report, seconds, peak_rss_mb, cached (bool); cloud.ply in its folder.
+    """The point source's record: report, seconds, peak_rss_mb, cached (bool); cloud.ply in its folder. Without
+    a cloud, ``unavailable`` says why: "n/a: ..." (the source cannot run here) or "failed: ..." (it ran and gave
+    no point).
     ``key``: the stage key as the caller computed it (a run keeps the keys it started with even if the code
     changes meanwhile); default ``row.points_key()``. ``provenance`` (e.g. the commit) is stored in the record
     when the stage is computed, so a cached result keeps the provenance of the run that made it."""
@@ -215,7 +217,7 @@ def run_points(
 
 def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | None, device) -> dict:
     from ..io import PanoreconInputError
-    from ..sources import run_source
+    from ..sources import EmptyCloudError, run_source
 
     t, cpu, load = time.perf_counter(), time.process_time(), os.getloadavg()[0]
     scene = load_row_scene(row.scene, row.width, cache, row.depth)
@@ -224,13 +226,16 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
         pc, report = run_source(
             scene, row.source, row._teacher_for_points(), row.views, fusion_config_for(device), seed=row.seed
         )
-    except PanoreconInputError as e:  # a source that cannot run here says why ("n/a: needs a CUDA build ...")
-        if not str(e).startswith("n/a"):
+    except PanoreconInputError as e:
+        # a source that cannot run here says why ("n/a: needs a CUDA build ..."); one that ran and gave no point
+        # (COLMAP triangulating nothing) has that as the run's outcome ("failed: ...")
+        failed = isinstance(e, EmptyCloudError)
+        if not (failed or str(e).startswith("n/a")):
             raise
         record = {
             "stage": "points",
             "key": key,
-            "unavailable": str(e),
+            "unavailable": f"failed: {e}" if failed else str(e),
             "scene_seconds": scene_s,
             "seconds": time.perf_counter() - t,
             "cpu_seconds": time.process_time() - cpu,

@@ -55,6 +55,11 @@ def _per_view_abs_rel(scene, view_depths) -> float:
     return float(np.median(rels)) if rels else float("nan")
 
 
+class EmptyCloudError(PanoreconInputError):
+    """A source ran on a scene and gave no point (e.g. COLMAP triangulating nothing): one line for a command,
+    and the run's recorded outcome ("failed: ...") in an ablation table."""
+
+
 POINT_METRIC_SAMPLE = 200_000  # points of each cloud the point metrics compare (point_metrics' default)
 
 
@@ -135,10 +140,13 @@ def run_source(
     extra = {"seed": seed} if _takes_seed(spec.fn) else {}
     pc, seconds, info = spec.fn(scene, teacher, views, fusion_config, view_size, **extra)
     if len(pc) == 0:
-        raise PanoreconInputError(
-            f"source {source_name!r} with teacher {teacher_spec!r} gave no point on scene "
-            f"{scene.name!r} (no valid fused depth; at small widths try a larger --width or "
-            "--view-size)"
+        why = (
+            "no valid fused depth; at small widths try a larger --width or --view-size"
+            if spec.uses_teacher
+            else "it reconstructed nothing from this scene's views"
+        )
+        raise EmptyCloudError(
+            f"source {source_name!r} with teacher {teacher_spec!r} gave no point on scene {scene.name!r} ({why})"
         )
     if max_points is not None:
         t = time.perf_counter()

@@ -137,3 +137,19 @@ def test_the_stratified_interval_matches_the_textbook_cases():
     se = np.sqrt((np.var([0, 1, 2, 3], ddof=1) / 4) * 2) / 2
     h = stats.t.ppf(0.975, 6) * se
     assert iv.estimate == pytest.approx(6.5) and iv.df == pytest.approx(6) and iv.half_width == pytest.approx(h)
+
+
+def test_a_scene_left_with_one_value_borrows_the_pooled_seed_variance():
+    """A row whose other runs on a scene failed keeps its interval: that scene's variance is the pooled variance of
+    the others, and the degrees of freedom are those of the variances that entered (here scene a's 3)."""
+    from scipy import stats
+
+    a = [0.0, 1.0, 2.0, 3.0]
+    frame = pd.DataFrame({"scene": ["a"] * 4 + ["b"], "value": a + [10.0]})
+    iv = S.these_scenes(frame)
+    v = np.var(a, ddof=1)
+    h = stats.t.ppf(0.975, 3) * np.sqrt((v / 4 + v / 1) / 4)
+    assert iv.estimate == pytest.approx(5.75) and iv.df == pytest.approx(3) and iv.half_width == pytest.approx(h)
+    assert S.needed_seeds(frame) is not None
+    # every scene with one value: still no interval over seeds
+    assert S.these_scenes(frame.iloc[[0, 4]]).reason.startswith("one seed")

@@ -173,3 +173,38 @@ def test_an_interrupt_ends_the_runs_in_flight_too(tmp_path):
         )
     assert len(pids) == 1
     assert time.perf_counter() - t0 < 30  # the 60 s worker was ended (the pool waits for it to exit), not awaited
+
+
+def test_a_source_that_gives_no_point_is_a_failed_row_kept_in_results_csv(tmp_path, monkeypatch):
+    """COLMAP SfM on 64-px panoramas triangulates nothing: that run's outcome is a row saying so ("failed: ..."),
+    the other rows still run, results.md lists it under the failed runs, and a rerun without the cache does not
+    try it again (an "n/a: ..." row, which cannot run here, would be)."""
+    import shutil
+
+    suite_file = tmp_path / "sources.toml"
+    suite_file.write_text(
+        'title = "S"\nrows = ["source"]\nreference = { source = "fibonacci" }\n'
+        + COMMON
+        + "[grid]\nscene = ['bedroom']\nsource = ['fibonacci', 'colmap-sfm']\n"
+    )
+    ran: list = []
+    real = ablate._run_tasks
+
+    def counting(fn, tasks, *a, **k):
+        ran.append([t[0].source for t in tasks])
+        return real(fn, tasks, *a, **k)
+
+    monkeypatch.setattr(ablate, "_run_tasks", counting)
+    out = tmp_path / "out"
+    frame = run_suites([load_suite(suite_file)], out, jobs=1, progress=False)[0]
+    sfm = frame.set_index("label").loc["colmap-sfm"]
+    assert (
+        sfm["unavailable_note"].startswith("failed: source 'colmap-sfm'") and "gave no point" in sfm["unavailable_note"]
+    )
+    assert frame.set_index("label").loc["fibonacci", "psnr_ho"] > 0
+    md = (out / "results.md").read_text()
+    assert "Failed runs" in md and "- colmap-sfm, bedroom, seed 0: source 'colmap-sfm'" in md
+    assert "n/a cells: failed" not in md
+    shutil.rmtree(out / "cache")
+    run_suites([load_suite(suite_file)], out, jobs=1, progress=False)
+    assert ran == [["fibonacci", "colmap-sfm"], []]
