@@ -110,11 +110,18 @@ def _run_tasks(
         if cluster is not None:
             cluster.close()
     else:
-        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
+        pool = ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), max_tasks_per_child=1)
+        try:
             futures = {pool.submit(fn, cache_root, t): t for t in tasks}
             for f in as_completed(futures):
                 on_done(futures[f], f.result())
                 bar.update()
+        except BaseException:  # Ctrl-C, SIGTERM (Interrupted) or a failed run: the runs in flight end too
+            for worker in list((pool._processes or {}).values()):  # noqa: SLF001 -- the pool has no public kill
+                worker.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown()
     bar.close()
 
 

@@ -142,3 +142,34 @@ def test_runs_go_in_scene_seed_blocks_whatever_is_already_done():
     todo = [r for r in every if (r.scene, r.seed) != ("b", 0)]  # one block already done
     order = [(r.scene, r.seed) for r in ablate._block_order(todo, every)]
     assert order == [("b", 1), ("b", 2), ("a", 0), ("a", 1), ("a", 2)]
+
+
+def _sleep_then_report_pid(cache_root: str, seconds: float) -> int:
+    """A worker task: sleep, then return this worker's process id."""
+    import os
+    import time
+
+    time.sleep(seconds)
+    return os.getpid()
+
+
+def test_an_interrupt_ends_the_runs_in_flight_too(tmp_path):
+    """Ctrl-C or SIGTERM reaches the parent only (SIGTERM from a scheduler, or a Ctrl-C outside the terminal's
+    process group): the worker still running a 60 s task is ended with it, not waited for."""
+    import time
+
+    from panorecon.interrupts import Interrupted
+
+    pids = []
+
+    def interrupt_on_the_first(task, pid):
+        pids.append(pid)
+        raise Interrupted()
+
+    t0 = time.perf_counter()
+    with pytest.raises(Interrupted):
+        ablate._run_tasks(
+            _sleep_then_report_pid, [0.2, 60.0], str(tmp_path), 2, "local", None, False, interrupt_on_the_first
+        )
+    assert len(pids) == 1
+    assert time.perf_counter() - t0 < 30  # the 60 s worker was ended (the pool waits for it to exit), not awaited
