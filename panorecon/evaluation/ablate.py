@@ -147,7 +147,7 @@ def finished_rows(paths: list[Path]) -> dict[str, dict]:
             continue
         for rec in frame.to_dict("records"):
             note = rec.get("unavailable_note")
-            if isinstance(note, str) and note:
+            if isinstance(note, str) and note.startswith("n/a"):  # a "failed: ..." row is a result: kept
                 continue
             found.setdefault(rec["run_id"], rec)
     return found

@@ -225,12 +225,14 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
             scene, row.source, row._teacher_for_points(), row.views, fusion_config_for(device), seed=row.seed
         )
     except PanoreconInputError as e:  # a source that cannot run here says why ("n/a: needs a CUDA build ...")
-        if not str(e).startswith("n/a"):
+        # a source that ran and gave no point (COLMAP triangulating nothing) is that run's outcome, not an error
+        failed = "gave no point" in str(e)
+        if not (str(e).startswith("n/a") or failed):
             raise
         record = {
             "stage": "points",
             "key": key,
-            "unavailable": str(e),
+            "unavailable": f"failed: {e}" if failed else str(e),
             "scene_seconds": scene_s,
             "seconds": time.perf_counter() - t,
             "cpu_seconds": time.process_time() - cpu,
