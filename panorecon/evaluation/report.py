@@ -430,7 +430,13 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
     if failed:
         parts += [failed, ""]
     notes = sorted(
-        {v for c in frame.columns if c.endswith("_note") for v in frame[c].dropna().unique() if v.startswith("n/a")}
+        {
+            v
+            for c in frame.columns
+            if c.endswith("_note")
+            for v in frame[c].dropna().unique()
+            if not str(v).startswith("failed:")  # listed above, with their seeds
+        }
     )
     if notes:
         parts += ["n/a cells: " + "; ".join(notes), ""]
