@@ -60,8 +60,10 @@ def _table(table: pd.DataFrame, label_header: str) -> str:
         "</tr></thead><tbody>",
     ]
     for label, r in table.iterrows():
-        n = int(r["runs"]) if "runs" in r else int(r["scenes"]) * int(r.get("seeds", 1))
-        cells = [f"<td>{html.escape(str(label))}</td>", f"<td data-v='{n}'>{html.escape(design_cell(r))}</td>"]
+        cells = [
+            f"<td>{html.escape(str(label))}</td>",
+            f"<td data-v='{int(r['runs'])}'>{html.escape(design_cell(r))}</td>",
+        ]
         for c, _, f in heads:
             v, hw = r[c], r.get(f"{c}_hw", math.nan)
             ok = v is not None and not (isinstance(v, float) and math.isnan(v))

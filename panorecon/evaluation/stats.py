@@ -195,7 +195,7 @@ def needed_seeds(diffs) -> int | None:
     """Seeds per scene (on these scenes) for the observed mean difference to be resolved with 80 % power, from
     each scene's spread over seeds; None when there is no spread to go by or no difference."""
     groups = _by_scene(diffs)
-    v = _seed_variances(groups) if groups else None
+    v = _seed_variances(groups)
     if v is None:
         return None
     est = abs(np.mean([g.mean() for g in groups]))
