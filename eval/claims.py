@@ -1,15 +1,19 @@
 """The paper's ablation claims judged on the committed tables (README's "Results" table).
 
-    python eval/claims.py benchmarks/tables [--step N] [--markdown]
+    python eval/claims.py benchmarks/tables [--step N] [--markdown] [--suites eval/suites]
 
 Reads ``DIR/table{2,4,5,6,7}/results.csv`` (``panorecon ablate eval/suites/table{2,4,5,6,7}.toml --out DIR``)
 and, for each claim of the paper's §3, takes the paired difference that the claim is about (run by run on the
 same scene and seed, ``evaluation/stats.py``) on the paper's protocol (pseudo-label PSNR) and on held-out
 views, each with its 95 % interval on these scenes and across new scenes. A claim is **confirmed** when every
-difference it makes is resolved in its direction, **contradicted** when one is resolved against it, else
-**not resolved**; a claim whose rows cannot run here (no weights, no CUDA) is ``n/a`` with the reason. The
-verdict column is the paper's protocol on these scenes; the new-scenes verdict is in its cell. Prints JSON, or
-the markdown table with ``--markdown``. ``--step``: read every run at that training budget (default: the last).
+difference it makes is resolved in its direction, **contradicted** when one is resolved against it,
+**equivalent** when none is against it and every one not resolved in its direction lies inside the suite's
+equivalence margin (±0.1 dB unless the suite says otherwise), else **not resolved**; a claim whose rows cannot
+run here (no weights, no CUDA) is ``n/a`` with the reason. Beside each verdict: whether the intervals rule out
+the paper's own difference for the same rows (its figures from the suite's [paper] block, ``eval/suites``;
+"n/a" where the paper has no figure for a row, as for the sim: stand-ins). The verdict column is the paper's
+protocol on these scenes; the new-scenes verdict is in its cell. Prints JSON, or the markdown table with
+``--markdown``. ``--step``: read every run at that training budget (default: the last).
 """
 
 from __future__ import annotations
@@ -21,8 +25,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from panorecon.evaluation.report import at_budget
-from panorecon.evaluation.stats import compare
+from panorecon.evaluation.report import at_budget, paper_difference
+from panorecon.evaluation.stats import RESOLVED, compare
+from panorecon.evaluation.suite import load_suite
+
+SUITES = Path(__file__).resolve().parent / "suites"
 
 # (claim, paper's figure, table, [(row, reference, sign)]: the claim says sign * (row - reference) > 0)
 CLAIMS = [
@@ -76,30 +83,57 @@ def _cell(c) -> dict:
         "new": iv(c.new),
         "verdict_these": c.verdict_these,
         "verdict_new": c.verdict_new,
+        "equivalent_these": c.equivalent_these,
+        "equivalent_new": c.equivalent_new,
+        "margin": c.margin,
+        "paper": None if math.isnan(c.paper) else c.paper,
+        "paper_ruled_out_these": c.paper_ruled_out_these,
+        "paper_ruled_out_new": c.paper_ruled_out_new,
         "to_resolve_these": c.to_resolve_these,
         "to_resolve_new": c.to_resolve_new,
         "pairs": c.pairs,
     }
 
 
-def _judge(verdicts: list[str], signs: list[int]) -> str:
-    """better/worse verdicts of (row - reference) against the claim's signs -> confirmed, contradicted or not
-    resolved."""
-    if not verdicts:
+def _judge(comps: list, signs: list[int], which: str) -> str:
+    """A claim's verdict from its comparisons (row − reference, the ``"these"`` or ``"new"`` interval) against
+    the claim's signs: contradicted (one resolved against), confirmed (all resolved with it), equivalent (none
+    against, and every one not resolved with it inside its margin), else not resolved."""
+    if not comps:
         return "n/a: no runs"
-    agree = [(v == "better") == (s > 0) for v, s in zip(verdicts, signs) if v in ("better", "worse")]
-    if any(not a for a in agree):
+    verdicts = [getattr(c, f"verdict_{which}") for c in comps]
+    with_claim = [v in RESOLVED and (v == "better") == (s > 0) for v, s in zip(verdicts, signs)]
+    if any(v in RESOLVED and not w for v, w in zip(verdicts, with_claim)):
         return "contradicted"
-    return "confirmed" if len(agree) == len(verdicts) else "not resolved"
+    if all(with_claim):
+        return "confirmed"
+    if all(w or getattr(c, f"equivalent_{which}") for c, w in zip(comps, with_claim)):
+        return "equivalent"
+    return "not resolved"
 
 
-def judge(tables: Path, step: int | None = None) -> list[dict]:
+def _paper_size(comps: list, which: str) -> str:
+    """Whether a claim's intervals rule out the paper's own differences: "ruled out", "ruled out for ROW, ...",
+    "consistent", or "n/a" where the paper reports none of its rows."""
+    tested = [(c.label, getattr(c, f"paper_ruled_out_{which}")) for c in comps]
+    tested = [(label, r) for label, r in tested if r is not None]
+    if not tested:
+        return "n/a"
+    out = [label for label, r in tested if r]
+    if len(out) == len(tested):
+        return "ruled out"
+    return f"ruled out for {', '.join(out)}" if out else "consistent"
+
+
+def judge(tables: Path, step: int | None = None, suites: Path = SUITES) -> list[dict]:
     out = []
     for claim, paper, table, diffs in CLAIMS:
         csv = tables / table / "results.csv"
         if not csv.is_file():
             out.append({"claim": claim, "paper": paper, "table": table, "verdict": f"n/a: no {csv}"})
             continue
+        suite = load_suite(suites / f"{table}.toml")
+        figures = suite.paper_figures()
         frame = pd.read_csv(csv, dtype={"label": str})
         if step is not None:
             frame = at_budget(frame, step)
@@ -111,18 +145,25 @@ def judge(tables: Path, step: int | None = None) -> list[dict]:
             "seeds": int(frame["seed"].nunique()),
         }
         for col, proto in (("psnr_pl", "pseudo_label"), ("psnr_ho", "heldout")):
-            comps = [(compare(frame, col, row, ref), sign) for row, ref, sign in diffs if row in set(frame["label"])]
+            comps = [
+                (compare(frame, col, row, ref, suite.margins, paper_difference(figures, col, row, ref)), sign)
+                for row, ref, sign in diffs
+                if row in set(frame["label"])
+            ]
             rec[proto] = {c.label: _cell(c) for c, _ in comps}
-            rec[f"verdict_{proto}_these"] = _judge([c.verdict_these for c, _ in comps], [s for _, s in comps])
-            rec[f"verdict_{proto}_new"] = _judge([c.verdict_new for c, _ in comps], [s for _, s in comps])
+            for which in ("these", "new"):
+                rec[f"verdict_{proto}_{which}"] = _judge([c for c, _ in comps], [s for _, s in comps], which)
+                rec[f"paper_size_{proto}_{which}"] = _paper_size([c for c, _ in comps], which)
         rec["verdict"] = rec["verdict_pseudo_label_these"]
         out.append(rec)
     return out
 
 
 def _range(cells: dict) -> str:
-    """The differences of a claim as 'row −0.12 [−0.20, −0.04]; ...' (these scenes), each unresolved one with the
-    scenes × seeds the statistics layer says would resolve it (80 % power), e.g. '(needs 1 × 12)'."""
+    """The differences of a claim as 'row −0.12 [−0.20, −0.04]; ...' (these scenes), each with the paper's own
+    difference where it reports one ('paper −0.40'), each equivalent one with its margin ('≡ ±0.1'), and each one
+    neither resolved nor equivalent with the scenes × seeds the statistics layer says would resolve it (80 %
+    power), e.g. '(needs 1 × 12)'."""
     parts = []
     for label, c in cells.items():
         t = c["these"]
@@ -132,26 +173,32 @@ def _range(cells: dict) -> str:
         text = f"{label} {t['estimate']:+.2f}"
         if not math.isnan(t["low"]):  # one pair per scene: no interval over seeds
             text += f" [{t['low']:+.2f}, {t['high']:+.2f}]"
+        notes = []
+        if c["paper"] is not None:
+            notes.append(f"paper {c['paper']:+.2f}")
+        if c["equivalent_these"]:
+            notes.append(f"≡ ±{c['margin']:g}")
         need = c.get("to_resolve_these", "n/a")
-        if c["verdict_these"] == "not resolved" and need not in ("n/a", "resolved"):
-            text += f" (needs {need})"
-        parts.append(text)
+        if c["verdict_these"] == "not resolved" and not c["equivalent_these"] and need not in ("n/a", "resolved"):
+            notes.append(f"needs {need}")
+        parts.append(text + (f" ({'; '.join(notes)})" if notes else ""))
     return "; ".join(parts)
 
 
 def markdown(claims: list[dict]) -> str:
     lines = [
         "| claim (paper §3) | paper | Δ pseudo-label PSNR, these scenes (dB, 95 %) | verdict (these / new scenes) "
-        "| held-out (these / new) | paired runs |",
-        "|---|---|---|---|---|---|",
+        "| paper's size (these / new) | held-out (these / new) | paired runs |",
+        "|---|---|---|---|---|---|---|",
     ]
     for c in claims:
         if "pseudo_label" not in c:
-            lines.append(f"| {c['claim']} | {c['paper']} | — | {c['verdict']} | — | — |")
+            lines.append(f"| {c['claim']} | {c['paper']} | — | {c['verdict']} | — | — | — |")
             continue
         lines.append(
             f"| {c['claim']} | {c['paper']} | {_range(c['pseudo_label'])} | **{c['verdict_pseudo_label_these']}** / "
-            f"{c['verdict_pseudo_label_new']} | {c['verdict_heldout_these']} / {c['verdict_heldout_new']} | "
+            f"{c['verdict_pseudo_label_new']} | {c['paper_size_pseudo_label_these']} / "
+            f"{c['paper_size_pseudo_label_new']} | {c['verdict_heldout_these']} / {c['verdict_heldout_new']} | "
             f"{min((x['pairs'] for x in c['pseudo_label'].values()), default=0)} |"
         )
     lines += ["", "Not run here: " + "; ".join(NOT_HERE.values()) + "."]
@@ -163,8 +210,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("tables", type=Path, help="the folder with table2/ ... table7/ (each with results.csv)")
     ap.add_argument("--step", type=int, default=None, help="read every run at this training budget (default: last)")
     ap.add_argument("--markdown", action="store_true", help="print README's markdown table instead of JSON")
+    ap.add_argument("--suites", type=Path, default=SUITES, help="the suite files (their [paper] figures, margins)")
     args = ap.parse_args(argv)
-    claims = judge(args.tables, args.step)
+    claims = judge(args.tables, args.step, args.suites)
     print(markdown(claims) if args.markdown else json.dumps(claims, indent=1, default=float))
     return 0
 

@@ -143,26 +143,52 @@ def _diff_cell(iv, fmt: str, v: str) -> str:
     return f"{'+' if iv.estimate >= 0 else ''}{est} ± {fmt.format(iv.half_width)} {v}"
 
 
-def comparison_rows(frame: pd.DataFrame, reference: str, column: str) -> list:
-    """``stats.compare`` of every other label against ``reference`` on ``column`` (suite order)."""
+def paper_difference(paper: dict | None, column: str, label: str, reference: str) -> float:
+    """The paper's own difference ``label − reference`` on ``column`` (``Suite.paper_figures``: metric ->
+    {label: value}; a budget column as its metric); NaN when the paper has no figure for either row."""
+    figs = (paper or {}).get(column.split("@")[0], {})
+    return figs[label] - figs[reference] if label in figs and reference in figs else math.nan
+
+
+def comparison_rows(
+    frame: pd.DataFrame, reference: str, column: str, margins: dict | None = None, paper: dict | None = None
+) -> list:
+    """``stats.compare`` of every other label against ``reference`` on ``column`` (suite order), with the
+    suite's equivalence ``margins`` and the paper's difference for each pair (``paper_difference``)."""
     from .stats import compare
 
-    return [compare(frame, column, label, reference) for label in dict.fromkeys(frame["label"]) if label != reference]
+    return [
+        compare(frame, column, label, reference, margins, paper_difference(paper, column, label, reference))
+        for label in dict.fromkeys(frame["label"])
+        if label != reference
+    ]
 
 
 COMPARISON_NOTE = (
     "Paired differences (row − {ref}, run by run on the same scene and seed: the same teacher noise and "
     "held-out views) with 95 % intervals. *These scenes*: scenes fixed, seeds resampled (could other seeds "
     "change it?). *New scenes*: scenes as a sample, seeds nested (would it hold on other scenes like these?). "
-    "*To resolve*: scenes × seeds that would resolve the observed difference with 80 % power, from the "
-    "observed spread. Method: `panorecon/evaluation/stats.py`, docs/guide.md (Intervals and verdicts)."
+    "*Equivalent (±m)*: the interval lies inside ±m, the suite's margin for that metric (TOST at 2.5 % a side); "
+    "*within ±m*: resolved, but smaller than the margin. *Paper's … ruled out*: the interval excludes the "
+    "paper's own difference for the same two rows. *To resolve*: scenes × seeds that would resolve the observed "
+    "difference with 80 % power, from the observed spread. Method: `panorecon/evaluation/stats.py`, "
+    "docs/guide.md (Intervals and verdicts)."
 )
 
 
-def comparison_tables(frame: pd.DataFrame, reference: str, label_header: str) -> list[tuple[list, list]]:
+def comparison_tables(
+    frame: pd.DataFrame,
+    reference: str,
+    label_header: str,
+    margins: dict | None = None,
+    paper: dict | None = None,
+) -> list[tuple[list, list]]:
     """The "against the reference" tables as (headers, rows of cells): the primary metric's paired differences
     on these scenes and across new scenes, with verdicts and the scenes × seeds that would resolve them; then
-    every metric with a direction, on these scenes. Empty when the frame has no such metric or no reference."""
+    every metric with a direction, on these scenes; then, where the paper reports both rows (``paper``:
+    ``Suite.paper_figures``), its difference beside ours on its protocol (pseudo-label PSNR) and whether ours
+    rules it out. ``margins``: the suite's equivalence margins. Empty when the frame has no such metric or no
+    reference."""
     from .stats import DIRECTION
 
     frame = with_seed(frame)
@@ -176,12 +202,12 @@ def comparison_tables(frame: pd.DataFrame, reference: str, label_header: str) ->
         [
             [
                 c.label,
-                _diff_cell(c.these, fmt, c.verdict_these),
+                _diff_cell(c.these, fmt, c.says("these")),
                 c.to_resolve_these,
-                _diff_cell(c.new, fmt, c.verdict_new),
+                _diff_cell(c.new, fmt, c.says("new")),
                 c.to_resolve_new,
             ]
-            for c in comparison_rows(frame, reference, col)
+            for c in comparison_rows(frame, reference, col, margins, paper)
         ],
     )
     heads = [
@@ -189,16 +215,47 @@ def comparison_tables(frame: pd.DataFrame, reference: str, label_header: str) ->
         for c, h, f in TABLE_COLUMNS
         if c in frame and DIRECTION.get(c, 0) != 0 and pd.to_numeric(frame[c], errors="coerce").notna().any()
     ]
-    per_metric = {c: comparison_rows(frame, reference, c) for c, _, _ in heads}
+    per_metric = {c: comparison_rows(frame, reference, c, margins, paper) for c, _, _ in heads}
     labels = [label for label in dict.fromkeys(frame["label"]) if label != reference]
     every = (
         [label_header] + [h for _, h, _ in heads],
         [
-            [label] + [_diff_cell(per_metric[c][i].these, f, per_metric[c][i].verdict_these) for c, _, f in heads]
+            [label] + [_diff_cell(per_metric[c][i].these, f, per_metric[c][i].says("these")) for c, _, f in heads]
             for i, label in enumerate(labels)
         ],
     )
-    return [first, every]
+    tables = [first, every]
+    against_paper = [c for c in per_metric.get("psnr_pl", []) if not math.isnan(c.paper)]
+    if against_paper:
+        tables.append(
+            (
+                [label_header, "paper's Δ PSNR", "ours: Δ these scenes", "ours: Δ new scenes", "paper's size"],
+                [
+                    [
+                        c.label,
+                        f"{c.paper:+.2f}".replace("-", "−"),
+                        _diff_cell(c.these, "{:.2f}", c.verdict_these),
+                        _diff_cell(c.new, "{:.2f}", c.verdict_new),
+                        paper_size_cell(c),
+                    ]
+                    for c in against_paper
+                ],
+            )
+        )
+    return tables
+
+
+def paper_size_cell(c) -> str:
+    """Whether a comparison's intervals rule out the paper's own difference: "ruled out (these and new
+    scenes)", "ruled out on these scenes", "consistent", or "n/a" without an interval."""
+    these, new = c.paper_ruled_out_these, c.paper_ruled_out_new
+    if these is None and new is None:
+        return "n/a"
+    if these and new:
+        return "ruled out (these and new scenes)"
+    if these or new:
+        return "ruled out on " + ("these" if these else "new") + " scenes"
+    return "consistent"
 
 
 def _markdown(headers: list, rows: list) -> str:
@@ -208,20 +265,29 @@ def _markdown(headers: list, rows: list) -> str:
     )
 
 
-def comparison_markdown(frame: pd.DataFrame, reference: str, label_header: str) -> str:
+PAPER_NOTE = (
+    "The paper's own differences (its Table, row − {ref}, pseudo-label PSNR on its scenes) against ours on the "
+    "same protocol: *ruled out* where our 95 % interval excludes the paper's figure."
+)
+
+
+def comparison_markdown(
+    frame: pd.DataFrame, reference: str, label_header: str, margins: dict | None = None, paper: dict | None = None
+) -> str:
     """The "against the reference" section of results.md (``comparison_tables``)."""
-    tables = comparison_tables(frame, reference, label_header)
+    tables = comparison_tables(frame, reference, label_header, margins, paper)
     if not tables:
         return ""
-    return "\n\n".join(
-        [
-            f"## Against the reference: {reference}",
-            COMPARISON_NOTE.format(ref=reference),
-            _markdown(*tables[0]),
-            "Every metric, these scenes (lower is better for LPIPS, AbsRel, Chamfer, Acc., Comp., seconds and MB):",
-            _markdown(*tables[1]),
-        ]
-    )
+    parts = [
+        f"## Against the reference: {reference}",
+        COMPARISON_NOTE.format(ref=reference),
+        _markdown(*tables[0]),
+        "Every metric, these scenes (lower is better for LPIPS, AbsRel, Chamfer, Acc., Comp., seconds and MB):",
+        _markdown(*tables[1]),
+    ]
+    if len(tables) > 2:
+        parts += [PAPER_NOTE.format(ref=reference), _markdown(*tables[2])]
+    return "\n\n".join(parts)
 
 
 def _paper_block(paper: dict) -> str:
@@ -269,10 +335,17 @@ def at_budget(frame: pd.DataFrame, step: int) -> pd.DataFrame:
     return out
 
 
-def budget_markdown(frame: pd.DataFrame, reference: str | None, label_header: str) -> str:
+def budget_markdown(
+    frame: pd.DataFrame,
+    reference: str | None,
+    label_header: str,
+    margins: dict | None = None,
+    paper: dict | None = None,
+) -> str:
     """The "At each training budget" section of results.md: per step, every row's mean (95 % interval over seeds)
-    and, with a reference, its paired difference on these scenes and on new scenes with verdicts; '' when the
-    runs record fewer than two budgets."""
+    and, with a reference, its paired difference on these scenes and on new scenes with verdicts (equivalence
+    within the suite's ``margins``; the paper's difference where it reports both rows); '' when the runs record
+    fewer than two budgets."""
     steps = budget_steps(frame)
     if len(steps) < 2:
         return ""
@@ -295,7 +368,7 @@ def budget_markdown(frame: pd.DataFrame, reference: str | None, label_header: st
     for n in steps:
         b = at_budget(frame, n)
         table = average_table(b)
-        comps = {c.label: c for c in comparison_rows(b, reference, prim)} if reference else {}
+        comps = {c.label: c for c in comparison_rows(b, reference, prim, margins, paper)} if reference else {}
         rows = []
         for label, r in table.iterrows():
             cell = _fmt(r[prim], "{:.2f}") + (f" ± {r[f'{prim}_hw']:.2f}" if not math.isnan(r[f"{prim}_hw"]) else "")
@@ -310,7 +383,7 @@ def budget_markdown(frame: pd.DataFrame, reference: str | None, label_header: st
                 cells += (
                     ["reference", "reference"]
                     if c is None
-                    else [_diff_cell(c.these, "{:.2f}", c.verdict_these), _diff_cell(c.new, "{:.2f}", c.verdict_new)]
+                    else [_diff_cell(c.these, "{:.2f}", c.says("these")), _diff_cell(c.new, "{:.2f}", c.says("new"))]
                 )
             rows.append(cells)
         parts += [f"### Step {n:,}", "", _markdown(headers, rows), ""]
@@ -416,9 +489,10 @@ def write_results_md(frame: pd.DataFrame, suite, out: Path, wall_seconds: float,
         + markdown_table(average_table(frame), head),
         "",
     ]
+    margins, paper = suite.margins, suite.paper_figures()
     if reference:
-        parts += [comparison_markdown(frame, reference, head), ""]
-    budgets = budget_markdown(frame, reference, head)
+        parts += [comparison_markdown(frame, reference, head, margins, paper), ""]
+    budgets = budget_markdown(frame, reference, head, margins, paper)
     if budgets:
         parts += [budgets, ""]
     for note in mixed_code_notes(frame):

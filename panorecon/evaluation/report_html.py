@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..io import atomic_write
-from .report import COMPARISON_NOTE, TABLE_COLUMNS, average_table, comparison_tables, design_cell, with_seed
+from .report import COMPARISON_NOTE, PAPER_NOTE, TABLE_COLUMNS, average_table, comparison_tables, design_cell, with_seed
 
 CSS = """body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#222;max-width:1400px}
 table{border-collapse:collapse;margin:8px 0 20px}th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}
@@ -131,7 +131,7 @@ def write_report_html(
     head = " / ".join(suite.row_columns)
     seeds = sorted(set(frame["seed"]))
     reference = getattr(suite, "reference", None)
-    tables = comparison_tables(frame, reference, head) if reference else []
+    tables = comparison_tables(frame, reference, head, suite.margins, suite.paper_figures()) if reference else []
     parts = [
         f"<!doctype html><html><head><meta charset=utf-8><title>{html.escape(suite.title)}</title>",
         f"<style>{CSS}</style></head><body><h1>{html.escape(suite.title)}</h1>",
@@ -152,6 +152,8 @@ def write_report_html(
             "<p>Every metric, these scenes:</p>",
             _plain_table(*tables[1]),
         ]
+        if len(tables) > 2:
+            parts += [f"<p>{html.escape(PAPER_NOTE.format(ref=reference))}</p>", _plain_table(*tables[2])]
     for title, name in (("Error against run time", "pareto.png"), ("PSNR against steps", "psnr_vs_iterations.png")):
         if (out / name).exists():
             parts += [f"<h2>{title}</h2>", f"<img class=plot alt='{name}' src='{data_uri(out / name)}'>"]

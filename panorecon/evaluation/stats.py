@@ -16,9 +16,17 @@ Two questions, two intervals (both Student t, float64):
   t = 12.7: only a large, consistent difference is resolved).
 
 A verdict is ``better`` / ``worse`` when the 95 % interval excludes 0 (by the metric's direction), else
-``not resolved``; ``n/a: <reason>`` below a method's minimum. ``needed_*`` turn the observed spread into the
-smallest design that would resolve the observed difference with 80 % power at the 5 % level
-(``|d| >= (t_.975 + t_.80) * SE``, the usual t-based sample-size rule).
+``not resolved``; ``n/a: <reason>`` below a method's minimum. Two more statements say what an interval rules
+out, whether or not it excludes 0:
+
+- **equivalent** (within ``±margin``): the 95 % interval lies strictly inside ``(-margin, +margin)``, i.e. both
+  one-sided tests ``H0: d <= -margin`` and ``H0: d >= +margin`` reject at 2.5 % each (TOST; its size is at most
+  2.5 %, within the 5 % asked; ``eval/interval_null_rates.py`` checks it by simulation). The margin is per
+  metric: a suite's ``margins`` table, else ``DEFAULT_MARGINS`` (0.1 dB for a PSNR).
+- **the paper's size ruled out**: the 95 % interval excludes the paper's own difference for the same two rows.
+
+``needed_*`` turn the observed spread into the smallest design that would resolve the observed difference with
+80 % power at the 5 % level (``|d| >= (t_.975 + t_.80) * SE``, the usual t-based sample-size rule).
 """
 
 from __future__ import annotations
@@ -57,6 +65,19 @@ DIRECTION = {
     "points": 0,
     "gaussians": 0,
 }
+
+
+# metric -> equivalence margin in the metric's unit, when a suite states none. 0.1 dB of PSNR (2.3 % of the
+# mean squared error) is below every difference the paper's claims rest on (0.17-0.93 dB) and about one seed's
+# spread of one run on one scene (guide, "Intervals and verdicts"). Other metrics: only where a suite states one.
+DEFAULT_MARGINS = {"psnr_pl": 0.1, "psnr_ho": 0.1, "heldout_aligned_psnr": 0.1}
+
+
+def margin_for(column: str, margins: dict | None = None) -> float | None:
+    """The equivalence margin of ``column`` (a budget column ``psnr_ho@300`` as ``psnr_ho``): the suite's
+    ``margins`` entry, else ``DEFAULT_MARGINS``'s; None when neither names it (no equivalence verdict)."""
+    key = column.split("@")[0]
+    return {**DEFAULT_MARGINS, **(margins or {})}.get(key)
 
 
 @dataclass(frozen=True)
@@ -155,6 +176,22 @@ def verdict(iv: Interval, direction: int) -> str:
     return "better" if up == (direction > 0) else "worse"
 
 
+def equivalent(iv: Interval, margin: float | None) -> bool:
+    """True when the 95 % interval lies strictly inside (-margin, +margin) (two one-sided tests at 2.5 % each);
+    False without an interval or a margin."""
+    if margin is None or not (np.isfinite(iv.low) and np.isfinite(iv.high)):
+        return False
+    return -margin < iv.low and iv.high < margin
+
+
+def rules_out(iv: Interval, value: float) -> bool | None:
+    """Whether the 95 % interval excludes ``value`` (the paper's difference); None without an interval or a
+    value to test."""
+    if not (math.isfinite(value) and np.isfinite(iv.low) and np.isfinite(iv.high)):
+        return None
+    return not (iv.low <= value <= iv.high)
+
+
 def direction(column: str) -> int:
     """+1 / -1 / 0 of ``column`` (``DIRECTION``; a budget column ``psnr_ho@300`` as ``psnr_ho``)."""
     return DIRECTION.get(column.split("@")[0], 0)
@@ -243,31 +280,59 @@ def _design(n: int | None, fixed: int, scenes_first: bool) -> str:
     return f"{n} × {fixed}" if scenes_first else f"{fixed} × {n}"
 
 
+RESOLVED = ("better", "worse", "higher", "lower")
+
+
 @dataclass(frozen=True)
 class Comparison:
-    """One row's paired difference to the reference on one metric."""
+    """One row's paired difference to the reference on one metric, with what each interval rules out."""
 
     label: str
     column: str
     these: Interval
     new: Interval
-    verdict_these: str
+    verdict_these: str  # better / worse / higher / lower / not resolved / n/a: ...
     verdict_new: str
     to_resolve_these: str  # "scenes × seeds" on these scenes
     to_resolve_new: str  # "scenes × seeds" across new scenes
     pairs: int
+    margin: float | None = None  # the equivalence margin (metric's unit); None: no equivalence verdict
+    equivalent_these: bool = False  # the interval lies inside ±margin
+    equivalent_new: bool = False
+    paper: float = math.nan  # the paper's own difference for the same two rows (NaN: it reports none)
+    paper_ruled_out_these: bool | None = None  # the interval excludes ``paper`` (None: nothing to test)
+    paper_ruled_out_new: bool | None = None
+
+    def says(self, which: str) -> str:
+        """The verdict of the ``"these"`` or ``"new"`` interval in words: ``not resolved``, ``worse``,
+        ``equivalent (±0.1)``, ``worse, within ±0.1`` (resolved but smaller than the margin), then ``; paper's
+        −0.40 ruled out`` where the interval excludes the paper's difference."""
+        v, eq = getattr(self, f"verdict_{which}"), getattr(self, f"equivalent_{which}")
+        if eq:
+            m = f"{self.margin:g}"
+            v = f"{v}, within ±{m}" if v in RESOLVED else f"equivalent (±{m})"
+        if getattr(self, f"paper_ruled_out_{which}"):
+            v += f"; paper's {self.paper:+.2f} ruled out".replace("-", "−")
+        return v
 
 
-def compare(frame: pd.DataFrame, column: str, label: str, reference: str) -> Comparison:
-    """``label`` against ``reference`` on ``column`` (both intervals, verdicts and the designs that would resolve
-    the observed difference: scenes × seeds)."""
+def compare(
+    frame: pd.DataFrame,
+    column: str,
+    label: str,
+    reference: str,
+    margins: dict | None = None,
+    paper: float = math.nan,
+) -> Comparison:
+    """``label`` against ``reference`` on ``column``: both intervals, verdicts, the designs that would resolve the
+    observed difference (scenes × seeds), equivalence within the column's margin (``margin_for(column,
+    margins)``) and whether the paper's own difference ``paper`` (same two rows) is ruled out."""
     d = paired_differences(frame, column, label, reference)
     sign = direction(column)
     these, new = these_scenes(d), new_scenes(d)
     scenes = d["scene"].nunique()
     seeds = int(d.groupby("scene")["seed"].nunique().max()) if len(d) else 0
-    resolved_these = verdict(these, sign) in ("better", "worse", "higher", "lower")
-    resolved_new = verdict(new, sign) in ("better", "worse", "higher", "lower")
+    margin = margin_for(column, margins)
     return Comparison(
         label,
         column,
@@ -275,9 +340,15 @@ def compare(frame: pd.DataFrame, column: str, label: str, reference: str) -> Com
         new,
         verdict(these, sign),
         verdict(new, sign),
-        "resolved" if resolved_these else _design(needed_seeds(d), scenes, False),
-        "resolved" if resolved_new else _design(needed_scenes(d, max(seeds, 1)), max(seeds, 1), True),
+        "resolved" if verdict(these, sign) in RESOLVED else _design(needed_seeds(d), scenes, False),
+        "resolved" if verdict(new, sign) in RESOLVED else _design(needed_scenes(d, max(seeds, 1)), max(seeds, 1), True),
         len(d),
+        margin,
+        equivalent(these, margin),
+        equivalent(new, margin),
+        float(paper),
+        rules_out(these, paper),
+        rules_out(new, paper),
     )
 
 

@@ -14,6 +14,7 @@
     [[variants]]                      # optional: named settings, crossed with the grid
     label = "Fibonacci 15"
     views = 15
+    margins = { psnr_pl = 0.1 }       # optional: equivalence margins per metric (default: 0.1 dB for a PSNR)
     [paper]                           # the paper's published numbers, shown beside ours
     caption = "..."
     columns = ["PSNR", "SSIM", "LPIPS", "Time"]
@@ -30,7 +31,11 @@ of a synthetic scene (``scenes/synthetic.py``).
 random point source (``Row.seed``); a stage the seed does not change (a real teacher's depth) is shared between
 seeds. ``reference``: keys and values (as in [defaults]; ``label`` is the row's table label) that pick exactly
 one table row; results.md compares every other row with it on the same scene and seed (``evaluation/stats.py``).
-Without ``seeds`` a row's seed is its ``seed`` setting (default 0).
+Without ``seeds`` a row's seed is its ``seed`` setting (default 0). ``margins``: metric column -> the
+difference (in the metric's unit) within which two rows count as equivalent (``evaluation/stats.py``). A
+[paper] row's ``match`` picks exactly one of our table rows, as ``reference`` does; its PSNR / SSIM / LPIPS are
+then the paper's figures for that row, and the paper's difference between two matched rows is tested against
+ours (``Suite.paper_figures``).
 
 The file is checked before anything runs: unknown tables and keys are errors that name the closest valid one,
 every row value is checked by the declaration of the config field of its name (``row_settings``: the same
@@ -70,9 +75,11 @@ TOP_KEYS = {
     "paper": dict,
     "seeds": list,
     "reference": dict,
+    "margins": dict,
 }
 PAPER_KEYS = {"caption": str, "columns": list, "rows": list}
 PAPER_ROW_KEYS = {"label": str, "values": list, "match": dict}
+PAPER_METRICS = {"PSNR": "psnr_pl", "SSIM": "ssim_pl", "LPIPS": "lpips_pl"}  # [paper] column -> our metric
 
 
 @dataclass
@@ -85,6 +92,24 @@ class Suite:
     path: Path | None = None
     seeds: list[int] = field(default_factory=lambda: [0])
     reference: str | None = None  # the label of the reference row
+    margins: dict = field(default_factory=dict)  # metric column -> equivalence margin (``stats.margin_for``)
+    paper_labels: dict = field(default_factory=dict)  # our row label -> index of its [paper] row (``match``)
+
+    def paper_figures(self) -> dict[str, dict[str, float]]:
+        """The paper's figures of our rows: metric column (``psnr_pl``, ``ssim_pl``, ``lpips_pl``: the paper's
+        protocol) -> {our label: value}, from the [paper] rows a ``match`` ties to one of ours."""
+        cols = self.paper.get("columns", [])
+        rows = self.paper.get("rows", [])
+        out = {}
+        for name, metric in PAPER_METRICS.items():
+            if name in cols:
+                j = cols.index(name)
+                out[metric] = {
+                    label: float(rows[i]["values"][j])
+                    for label, i in self.paper_labels.items()
+                    if j < len(rows[i]["values"]) and isinstance(rows[i]["values"][j], (int, float))
+                }
+        return out
 
 
 def row_settings() -> dict[str, Setting]:
@@ -185,19 +210,48 @@ def _check_seeds(path: Path, data: dict, tables: list[dict]) -> list[int] | None
     return list(seeds)
 
 
-def _check_reference(path: Path, data: dict, schema: dict) -> dict | None:
-    ref = data.get("reference")
-    if ref is None:
+def _check_row_pick(path: Path, where: str, pick: dict | None, schema: dict) -> dict | None:
+    """A table that picks one table row by its settings (``reference``, a [paper] row's ``match``), checked:
+    non-empty, row keys only (not scene or seed), each value checked by its declaration."""
+    if pick is None:
         return None
     allowed = {k: v for k, v in schema.items() if k not in ("scene", "seed")}
-    if not ref:
-        raise PanoreconInputError(f"suite {path}: reference is empty; expected e.g. reference = {{ source = ... }}")
-    for k, v in ref.items():
+    if not pick:
+        raise PanoreconInputError(f"suite {path}: {where} is empty; expected e.g. {where} = {{ source = ... }}")
+    for k, v in pick.items():
         if k not in allowed:
-            hint = "; the reference is a table row, compared on every scene and seed" if k in schema else ""
-            raise PanoreconInputError(str(_unknown(path, "reference", k, allowed)) + hint)
-        check_value(path, "reference", k, v, schema)
-    return ref
+            hint = f"; {where} picks a table row, compared on every scene and seed" if k in schema else ""
+            raise PanoreconInputError(str(_unknown(path, where, k, allowed)) + hint)
+        check_value(path, where, k, v, schema)
+    return pick
+
+
+def _check_margins(path: Path, data: dict) -> dict:
+    """``margins = { metric = value }``: metrics with a direction (``stats.DIRECTION``), positive finite values."""
+    from .stats import DIRECTION
+
+    margins = data.get("margins", {})
+    for k, v in margins.items():
+        if not DIRECTION.get(k):
+            raise _unknown(path, "margins", k, {c for c, d in DIRECTION.items() if d})
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < float("inf")):
+            raise PanoreconInputError(f"suite {path}: margins {k} = {v!r}: expected a positive number (metric's unit)")
+    return {k: float(v) for k, v in margins.items()}
+
+
+def _one_row(path: Path, where: str, pick: dict, labels: list[str], all_labels: list[str]) -> str:
+    """The one table label that ``pick`` matched, else one error naming what it matched."""
+    if len(labels) == 1:
+        return labels[0]
+    said = ", ".join(f"{k} = {v!r}" for k, v in pick.items())
+    raise PanoreconInputError(
+        f"suite {path}: {where} {{ {said} }} matches "
+        + (
+            f"{len(labels)} rows ({', '.join(labels)}); add keys to pick one"
+            if labels
+            else f"no row; the rows are {', '.join(dict.fromkeys(all_labels))}"
+        )
+    )
 
 
 def _with_root(value, root: str | None, path: Path):
@@ -335,8 +389,16 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None, sce
         if c not in schema:
             raise _unknown(path, "rows", c, schema)
     seeds = _check_seeds(path, data, [defaults, grid, *variants])
-    reference = _check_reference(path, data, schema)
+    reference = _check_row_pick(path, "reference", data.get("reference"), schema)
+    margins = _check_margins(path, data)
+    paper_rows = data.get("paper", {}).get("rows", [])
+    paper_picks = {
+        i: _check_row_pick(path, f"[paper] rows[{i + 1}] match", r["match"], schema)
+        for i, r in enumerate(paper_rows)
+        if "match" in r
+    }
     rows, reference_labels = [], []
+    paper_found: dict[int, list[str]] = {i: [] for i in paper_picks}
     for variant in variants:
         for combo in itertools.product(*grid.values()):
             spec = {**defaults, **dict(zip(grid, combo)), **variant}
@@ -350,8 +412,11 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None, sce
             except ValueError as e:
                 raise PanoreconInputError(f"suite {path}: row {label!r}: {e}") from None
             named = {**spec, "label": label}  # reference = { label = "..." } names a row by its table label
-            if reference and all(named.get(k) == v for k, v in reference.items()) and label not in reference_labels:
-                reference_labels.append(label)
+            for pick, found in [(reference, reference_labels)] + [
+                (paper_picks[i], paper_found[i]) for i in paper_picks
+            ]:
+                if pick and all(named.get(k) == v for k, v in pick.items()) and label not in found:
+                    found.append(label)
             extra = {c: spec.get(c) for c in row_columns if c not in ROW_KEYS}
             depth = _with_root(spec.get("depth"), root, path)
             if depth is None and ("depth_scale" in spec or "depth_kind" in spec):
@@ -383,17 +448,13 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None, sce
                     )
     if not rows:
         raise PanoreconInputError(f"suite {path}: the grid is empty")
-    if reference and len(reference_labels) != 1:
-        said = ", ".join(f"{k} = {v!r}" for k, v in reference.items())
-        labels = list(dict.fromkeys(r.label for r in rows))
-        raise PanoreconInputError(
-            f"suite {path}: reference {{ {said} }} matches "
-            + (
-                f"{len(reference_labels)} rows ({', '.join(reference_labels)}); add keys to pick one"
-                if reference_labels
-                else f"no row; the rows are {', '.join(labels)}"
-            )
-        )
+    labels = [r.label for r in rows]
+    if reference:
+        _one_row(path, "reference", reference, reference_labels, labels)
+    paper_labels = {
+        _one_row(path, f"[paper] rows[{i + 1}] match", paper_picks[i], found, labels): i
+        for i, found in paper_found.items()
+    }
     return Suite(
         path.stem,
         data.get("title", path.stem),
@@ -403,6 +464,8 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None, sce
         path,
         seeds or sorted({r.seed for r in rows}),
         reference_labels[0] if reference else None,
+        margins,
+        paper_labels,
     )
 
 

@@ -48,4 +48,24 @@ def test_an_unresolved_difference_says_what_would_resolve_it(tmp_path):
     (c,) = [c for c in claims.judge(_table7(tmp_path, [0.5, -0.3, 0.2])) if c["table"] == "table7"]
     assert c["verdict"] == "not resolved"
     line = [x for x in claims.markdown([c]).splitlines() if "Adaptive pruning" in x][0]
-    assert "default +0.13 [" in line and "(needs 1 × " in line
+    assert "default +0.13 [" in line and "; needs 1 × " in line
+
+
+def test_a_difference_inside_the_margin_makes_the_claim_equivalent_and_rules_out_the_papers_size(tmp_path):
+    """Default − adaptive ≈ 0 on every seed: no effect either way, and the paper's −0.32 dB (its Table 7, read
+    from eval/suites/table7.toml) lies outside the interval."""
+    (c,) = [c for c in claims.judge(_table7(tmp_path, [0.01, -0.01, 0.0], scenes="abcd")) if c["table"] == "table7"]
+    assert c["verdict"] == "equivalent"
+    cell = c["pseudo_label"]["default"]
+    assert cell["equivalent_these"] and cell["margin"] == 0.1
+    assert abs(cell["paper"] - (41.75 - 42.07)) < 1e-9 and cell["paper_ruled_out_these"]
+    assert c["paper_size_pseudo_label_these"] == "ruled out"
+    line = [x for x in claims.markdown([c]).splitlines() if "Adaptive pruning" in x][0]
+    assert "(paper -0.32; ≡ ±0.1)" in line and "| **equivalent** /" in line and "| ruled out / " in line
+    assert "needs" not in line  # an equivalent difference needs no more runs
+
+
+def test_the_papers_size_inside_the_interval_is_consistent_not_ruled_out(tmp_path):
+    (c,) = [c for c in claims.judge(_table7(tmp_path, [-0.30, -0.35, -0.31], scenes="abcd")) if c["table"] == "table7"]
+    assert c["verdict"] == "confirmed" and c["paper_size_pseudo_label_these"] == "consistent"
+    assert not c["pseudo_label"]["default"]["equivalent_these"]

@@ -2,6 +2,8 @@
 effect is declared at about the nominal 5 % rate, pairing removes the scene effect, and the scenes × seeds
 estimate gives about the power it promises."""
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -153,3 +155,84 @@ def test_a_scene_left_with_one_value_borrows_the_pooled_seed_variance():
     assert S.needed_seeds(frame) is not None
     # every scene with one value: still no interval over seeds
     assert S.these_scenes(frame.iloc[[0, 4]]).reason.startswith("one seed")
+
+
+# equivalence within a margin and the paper's size ruled out, on hand-made intervals
+
+
+@pytest.mark.parametrize(
+    "low, high, margin, expected",
+    [
+        (-0.03, 0.02, 0.1, True),  # inside ±0.1
+        (-0.05, -0.01, 0.1, True),  # resolved, and still inside
+        (-0.03, 0.12, 0.1, False),  # crosses +margin
+        (-0.10, 0.05, 0.1, False),  # touches -margin: not strictly inside
+        (-0.03, 0.02, 0.01, False),  # a smaller margin
+        (-0.03, 0.02, None, False),  # no margin: no equivalence verdict
+        (math.nan, math.nan, 0.1, False),  # no interval
+    ],
+)
+def test_equivalent_when_the_interval_lies_inside_the_margin(low, high, margin, expected):
+    assert S.equivalent(S.Interval((low + high) / 2, low, high), margin) is expected
+
+
+@pytest.mark.parametrize(
+    "low, high, paper, expected",
+    [
+        (-0.03, 0.02, -0.40, True),  # the paper's Fibonacci 20 vs icosahedron: excluded
+        (-0.33, -0.19, -0.30, False),  # inside: consistent with the paper
+        (-0.46, -0.33, -0.93, True),  # same sign, smaller than the paper's: still ruled out
+        (-0.03, 0.02, math.nan, None),  # the paper reports no difference for this pair
+        (math.nan, math.nan, -0.40, None),
+    ],
+)
+def test_the_papers_size_is_ruled_out_when_the_interval_excludes_it(low, high, paper, expected):
+    assert S.rules_out(S.Interval((low + high) / 2, low, high), paper) is expected
+
+
+def _constant_pairs(d: list[float], scenes=4) -> pd.DataFrame:
+    """Reference 30 dB and ``row`` 30 + d[k] dB on every scene, seed k (a tight, known interval around mean(d))."""
+    recs = []
+    for s in range(scenes):
+        for k, dk in enumerate(d):
+            recs += [
+                {"label": "ref", "scene": f"s{s}", "seed": k, "psnr_pl": 30.0 + 0.01 * s},
+                {"label": "row", "scene": f"s{s}", "seed": k, "psnr_pl": 30.0 + 0.01 * s + dk},
+            ]
+    return pd.DataFrame(recs)
+
+
+def test_compare_reads_the_suites_margin_and_the_papers_difference():
+    frame = _constant_pairs([0.01, -0.02, 0.0])
+    c = S.compare(frame, "psnr_pl", "row", "ref", paper=-0.40)
+    assert c.verdict_these == "not resolved" and c.margin == 0.1 and c.equivalent_these
+    assert c.paper_ruled_out_these and c.says("these") == "equivalent (±0.1); paper's −0.40 ruled out"
+    narrow = S.compare(frame, "psnr_pl", "row", "ref", margins={"psnr_pl": 0.001}, paper=-0.40)
+    assert not narrow.equivalent_these and narrow.says("these") == "not resolved; paper's −0.40 ruled out"
+    near = S.compare(frame, "psnr_pl", "row", "ref", paper=0.0)  # the paper's figure inside the interval
+    assert near.paper_ruled_out_these is False and "paper" not in near.says("these")
+
+
+def test_a_resolved_difference_smaller_than_the_margin_says_both():
+    c = S.compare(_constant_pairs([-0.03, -0.04, -0.035]), "psnr_pl", "row", "ref")
+    assert c.verdict_these == "worse" and c.says("these") == "worse, within ±0.1"
+    assert S.margin_for("psnr_ho@300") == 0.1 and S.margin_for("lpips_pl") is None
+    assert S.margin_for("lpips_pl", {"lpips_pl": 0.005}) == 0.005
+
+
+@pytest.mark.parametrize("scenes, seeds", [(2, 3), (8, 3)])
+def test_equivalence_is_declared_at_most_5_percent_of_the_time_when_the_truth_is_at_the_margin(scenes, seeds):
+    """400 tables whose true difference equals the margin (either sign): equivalence must be rare (TOST's size)."""
+    rng = np.random.default_rng(10 + scenes)
+    margin = 0.1
+    for sign in (1, -1):
+        hits = []
+        for _ in range(400):
+            g = differences(rng, scenes, seeds, sign * margin)
+            hits.append([S.equivalent(S.these_scenes(g), margin), S.equivalent(S.new_scenes(g), margin)])
+        assert (np.mean(hits, axis=0) <= 0.05).all(), np.mean(hits, axis=0)
+    # and at no difference, with a spread the margin can see past, it is declared: the check above can fail
+    at_zero = [
+        S.equivalent(S.these_scenes(differences(rng, scenes, seeds, 0.0, run_sd=0.01)), margin) for _ in range(100)
+    ]
+    assert np.mean(at_zero) >= 0.9

@@ -339,3 +339,70 @@ def test_scene_dir_reads_each_scene_from_its_render_folder_checked_before_anythi
         bad = write(tmp_path, f"seeds = {seeds}\n" + text.format(w=w, r=r, s=scene))
         with pytest.raises(PanoreconInputError, match=match):
             load_suite(bad, scene_dir=str(tmp_path / "scenes"))
+
+
+PAPER = "\n[paper]\ncolumns = ['PSNR', 'SSIM', 'Time']\nrows = [\n{rows}\n]\n"
+
+
+def test_a_paper_row_matched_to_one_of_ours_gives_the_papers_figures(tmp_path):
+    rows = (
+        "{ label = 'ours', values = [42.07, 0.992, '8 min'], match = { source = 'fibonacci' } },\n"
+        "{ label = 'theirs', values = [38.64, 0.945, '1 min'] },\n"  # no match: shown, never compared
+        "{ label = 'random init', values = [30.5, 0.9, '2 min'], match = { label = 'random' } }"
+    )
+    s = load_suite(write(tmp_path, SEEDED + PAPER.format(rows=rows)))
+    assert s.paper_labels == {"fibonacci": 0, "random": 2}
+    assert s.paper_figures() == {
+        "psnr_pl": {"fibonacci": 42.07, "random": 30.5},
+        "ssim_pl": {"fibonacci": 0.992, "random": 0.9},
+    }
+
+
+@pytest.mark.parametrize(
+    "match, error",
+    [
+        ("{ source = 'cube' }", "\\[paper\\] rows\\[1\\] match \\{ source = 'cube' \\} matches no row; the rows are"),
+        ("{ teacher = 'sim:clean' }", "\\[paper\\] rows\\[1\\] match .* matches 2 rows \\(fibonacci, random\\)"),
+        ("{ sorce = 'fibonacci' }", "unknown key 'sorce' in \\[paper\\] rows\\[1\\] match; did you mean 'source'"),
+        ("{ scene = 'bedroom' }", "picks a table row, compared on every scene and seed"),
+    ],
+)
+def test_a_paper_match_that_does_not_pick_one_row_is_one_clear_error(tmp_path, match, error):
+    rows = f"{{ label = 'x', values = [42.0, 0.99, '1 min'], match = {match} }}"
+    with pytest.raises(PanoreconInputError, match=error) as e:
+        load_suite(write(tmp_path, SEEDED + PAPER.format(rows=rows)))
+    assert "s.toml" in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "margins, error",
+    [
+        ("{ psnr = 0.1 }", "unknown key 'psnr' in margins"),
+        ("{ points = 10 }", "unknown key 'points' in margins"),  # a count has no better direction
+        ("{ psnr_pl = 0 }", "margins psnr_pl = 0: expected a positive number"),
+        ("{ psnr_pl = 'a' }", "margins psnr_pl = 'a': expected a positive number"),
+        ("0.1", "margins must be a table"),
+    ],
+)
+def test_margins_name_metrics_with_a_direction_and_positive_values(tmp_path, margins, error):
+    with pytest.raises(PanoreconInputError, match=error):
+        load_suite(write(tmp_path, f"margins = {margins}\n" + SEEDED))
+    ok = load_suite(write(tmp_path, "margins = { psnr_pl = 0.05, lpips_ho = 0.002 }\n" + SEEDED))
+    assert ok.margins == {"psnr_pl": 0.05, "lpips_ho": 0.002}
+
+
+def test_the_shipped_tables_tie_the_papers_rows_to_ours():
+    """Tables 2, 5, 6 and 7 give the paper's figure for the rows its claims are about (Table 4's are real
+    networks our sim: stand-ins do not stand for)."""
+    from pathlib import Path
+
+    suites = Path(__file__).resolve().parents[2] / "eval" / "suites"
+    expect = {
+        "table2": {"fibonacci": 42.07, "colmap-sfm": 38.64, "colmap-mvs": 37.93},
+        "table5": {"120": 42.12, "180": 42.37, "240": 42.07, "300": 42.03, "360": 41.44},
+        "table6": {"Icosahedron (20)": 41.67, "Fibonacci 15": 41.58, "Fibonacci 20": 42.07, "Fibonacci 25": 42.24},
+        "table7": {"default": 41.75, "adaptive": 42.07},
+        "table4": {},
+    }
+    for name, figures in expect.items():
+        assert load_suite(suites / f"{name}.toml").paper_figures()["psnr_pl"] == figures, name
