@@ -266,7 +266,7 @@ def _markdown(headers: list, rows: list) -> str:
 
 
 PAPER_NOTE = (
-    "The paper's own differences (its Table, row − {ref}, pseudo-label PSNR on its scenes) against ours on the "
+    "The paper's own differences (row − {ref} in its table: pseudo-label PSNR on its own scenes) against ours on the "
     "same protocol: *ruled out* where our 95 % interval excludes the paper's figure."
 )
 

@@ -8,6 +8,7 @@ The CSV is checked first (one clear error, nothing written): it parses, has the 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -97,16 +98,7 @@ def rerender(csv, out, suite: Suite | None = None) -> pd.DataFrame:
         raise PanoreconInputError(f"--out {out}: exists and is not a folder")
     if suite is None:
         suite = Suite(csv.stem, f"Re-rendered from {csv}", [], ["row"], path=csv)
-    suite = Suite(
-        suite.name,
-        suite.title,
-        suite.rows,
-        suite.row_columns,
-        suite.paper,
-        suite.path,
-        sorted(set(frame["seed"])),
-        ref,
-    )
+    suite = dataclasses.replace(suite, seeds=sorted(set(frame["seed"])), reference=ref)
     if ref:
         frame["reference"] = frame["label"] == ref
     out.mkdir(parents=True, exist_ok=True)

@@ -149,7 +149,14 @@ def test_a_source_that_cannot_run_here_reads_na_and_the_suite_goes_on(tmp_path):
     assert "n/a: needs a CUDA build" in (tmp_path / "out" / "results.md").read_text()
 
 
-SEEDED = TINY.replace('rows = ["source"]', 'rows = ["source"]\nseeds = [0, 1]\nreference = { source = "fibonacci" }')
+SEEDED = TINY.replace(
+    'rows = ["source"]',
+    'rows = ["source"]\nseeds = [0, 1]\nreference = { source = "fibonacci" }\nmargins = { chamfer = 100.0 }',
+) + (
+    '[paper]\ncolumns = ["PSNR"]\nrows = [{ label = "theirs", values = [30.0] }, '
+    '{ label = "ours", values = [40.0], match = { source = "fibonacci" } }, '
+    '{ label = "random", values = [39.9], match = { source = "random" } }]\n'
+)
 
 
 @pytest.fixture(scope="module")
@@ -172,7 +179,10 @@ def test_a_suite_with_seeds_and_a_reference_runs_end_to_end(seeded_run):
     # one scene: no interval across scenes; Chamfer of random points is far worse on both seeds
     assert "n/a: one scene" in row
     chamfer = md.split("Every metric, these scenes")[1]
-    assert "worse" in chamfer.split("| random |")[1].split("\n")[0]
+    assert "worse, within ±100" in chamfer.split("| random |")[1].split("\n")[0]  # the suite's margin
+    # the paper's random − fibonacci = −0.1 dB beside ours, on its protocol (pseudo-label PSNR)
+    paper = md.split("The paper's own differences")[1].split("| random |")[1].split("\n")[0]
+    assert paper.startswith(" −0.10 | ") and paper.rstrip().endswith(("ruled out on these scenes |", "consistent |"))
     page = (d / "out" / "report.html").read_text()
     assert "Against the reference: fibonacci" in page and " ± " in page
 
@@ -189,7 +199,10 @@ def test_from_csv_re_renders_the_same_tables_without_running(seeded_run, tmp_pat
     assert body(tmp_path / "s") == body(d / "out")
     # the CSV alone: its reference column names the reference; rows are headed "row"
     assert main(["ablate", "--from-csv", str(csv), "--out", str(tmp_path / "re"), "--no-progress"]) == 0
-    assert body(tmp_path / "re") == body(d / "out").replace("| source |", "| row |")
+    # (no suite: no [paper] figures and the default margins, so the tables up to the paired ones are the same)
+    averaged = lambda p: body(p).split("## Against")[0]  # noqa: E731
+    assert averaged(tmp_path / "re") == averaged(d / "out").replace("| source |", "| row |")
+    assert "The paper's own differences" not in body(tmp_path / "re") and "within ±100" not in body(tmp_path / "re")
     assert not (tmp_path / "re" / "cache").exists()
     for name in ("pareto.png", "psnr_vs_iterations.png", "report.html", "results.csv"):
         assert (tmp_path / "re" / name).stat().st_size > 1000, name
