@@ -23,10 +23,11 @@ def main(argv=None) -> dict:
     import torch
 
     from panorecon.scenes import load_scene
+    from panorecon.splat.evaluate import _render
     from panorecon.splat.initial import sky_environment, view_background
     from panorecon.splat.labels import in_cloud_frame, make_heldout_views
     from panorecon.splat.ply import load_ply
-    from panorecon.splat.trainer import TrainConfig, _render
+    from panorecon.splat.trainer import TrainConfig
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path)

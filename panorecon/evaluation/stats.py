@@ -42,6 +42,13 @@ DIRECTION = {
     "psnr_ho": 1,
     "ssim_ho": 1,
     "lpips_ho": -1,
+    # held-out scores on the co-visible pixels (splat/evaluate.py); the oracle itself depends only on the scene and
+    # the held-out views, never on the row, so it has no direction (its paired difference is 0)
+    "heldout_covisible_psnr": 1,
+    "heldout_oracle_gap": -1,
+    "heldout_aligned_psnr": 1,
+    "heldout_aligned_ssim": 1,
+    "heldout_oracle_aligned_gap": -1,
     "abs_rel": -1,
     "rmse": -1,
     "delta1": 1,
