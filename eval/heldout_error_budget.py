@@ -41,11 +41,12 @@ def _rays(model):
 
 
 def _true_distance(scene, u: np.ndarray, scale: float) -> np.ndarray:
-    """The scene's true ray distance along unit directions ``u`` [N, 3] (nearest ERP sample), in the cloud's frame
-    (truth / ``scale``); inf for sky, NaN unknown."""
+    """The scene's true ray distance along unit directions ``u`` [N, 3] (bilinear ERP sample: a slanted surface's
+    distance, not its pixel's steps), in the cloud's frame (truth / ``scale``); inf or NaN where the sample
+    touches sky or unknown pixels."""
     from panorecon.geometry import sample_erp
 
-    return sample_erp(scene.distance.astype(np.float32), u, "nearest").astype(np.float64) / scale
+    return sample_erp(scene.distance.astype(np.float32), u, "linear").astype(np.float64) / scale
 
 
 def _replace(model, **params):
@@ -61,12 +62,14 @@ def _replace(model, **params):
     return GaussianModel(*[new[n].float().clone() for n in PARAM_NAMES])
 
 
-def snap_to_surface(model, scene, scale: float):
-    """Each Gaussian moved along its ray from the centre onto the true surface, and scaled by the same factor
-    (D_true / |mean|), so the centre sees it as before (same direction, same angular size); Gaussians whose ray
-    meets sky or no truth stay."""
+def snap_to_surface(model, scene, scale: float, keep: float = 0.0):
+    """Each Gaussian moved along its ray from the centre towards the true surface, to the distance
+    D + ``keep`` (|mean| - D) (``keep`` 0: onto it; 0.5: half its depth error left), and scaled by the same factor,
+    so the centre sees it as before (same direction, same angular size); Gaussians whose ray meets sky or no truth
+    stay. With ``keep`` > 0 the Gaussians along one ray keep their order in depth."""
     u, r = _rays(model)
-    f = _true_distance(scene, u, scale) / np.maximum(r, 1e-12)
+    d = _true_distance(scene, u, scale)
+    f = (d + keep * (r - d)) / np.maximum(r, 1e-12)
     f = np.where(np.isfinite(f) & (f > 0), f, 1.0)
     means = model.means.detach().double().numpy() * f[:, None]
     return _replace(model, means=means, log_scales=model.log_scales.detach().double().numpy() + np.log(f)[:, None])
@@ -129,9 +132,13 @@ TRUE_SKY = "true sky behind the Gaussians"
 # name -> the swap, (model, scene, scale) -> model; TRUE_SKY swaps the views' background instead
 SWAPS = {
     "as trained": lambda m, scene, scale: m,
-    "centres on the true surface (along the centre's rays)": snap_to_surface,
+    "depth error along the centre's rays halved": lambda m, scene, scale: snap_to_surface(m, scene, scale, 0.5),
+    "depth error along the centre's rays cut to 10 %": lambda m, scene, scale: snap_to_surface(m, scene, scale, 0.1),
+    "centres on the true surface (depth order lost)": snap_to_surface,
     "extent along the centre's rays clamped": lambda m, scene, scale: clamp_along_ray(m),
-    "centres snapped and extent clamped": lambda m, scene, scale: clamp_along_ray(snap_to_surface(m, scene, scale)),
+    "depth error halved and extent clamped": lambda m, scene, scale: clamp_along_ray(
+        snap_to_surface(m, scene, scale, 0.5)
+    ),
     "SH bands above 0 zeroed": lambda m, scene, scale: zero_higher_sh(m),
     "floaters removed": remove_floaters,
     TRUE_SKY: lambda m, scene, scale: m,

@@ -110,6 +110,8 @@ def test_snap_and_floaters_follow_the_true_distance():
     np.testing.assert_allclose(np.linalg.norm(got, axis=1), truth, rtol=1e-5)
     np.testing.assert_allclose(got / np.linalg.norm(got, axis=1, keepdims=True), u, atol=1e-6)
     np.testing.assert_allclose(np.exp(snapped.log_scales.detach().double().numpy())[:, 0], 0.02 * truth / r, rtol=1e-5)
+    half = script.snap_to_surface(m, scene, scale, keep=0.5).means.detach().double().numpy()
+    np.testing.assert_allclose(np.linalg.norm(half, axis=1), (truth + r) / 2, rtol=1e-5)
     kept = script.remove_floaters(m, scene, scale)
     assert (
         len(kept) == int((r >= (1 - script.FLOATER_REL) * truth).sum()) == int((r / truth > 0.99).sum())
