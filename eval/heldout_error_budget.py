@@ -69,7 +69,8 @@ def snap_to_surface(model, scene, scale: float, keep: float = 0.0):
     stay. With ``keep`` > 0 the Gaussians along one ray keep their order in depth."""
     u, r = _rays(model)
     d = _true_distance(scene, u, scale)
-    f = (d + keep * (r - d)) / np.maximum(r, 1e-12)
+    with np.errstate(invalid="ignore"):  # sky: inf - inf
+        f = (d + keep * (r - d)) / np.maximum(r, 1e-12)
     f = np.where(np.isfinite(f) & (f > 0), f, 1.0)
     means = model.means.detach().double().numpy() * f[:, None]
     return _replace(model, means=means, log_scales=model.log_scales.detach().double().numpy() + np.log(f)[:, None])
