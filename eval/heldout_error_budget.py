@@ -1,13 +1,25 @@
-"""Where a trained run's held-out error sits: per held-out view, the share of the squared error in holes (pixels
-whose rendered alpha is below 0.9: what the centre never saw and nothing covers) and in pixels whose rendered
-depth is more than 5 % off the true depth (geometry, mostly at depth edges), and the mean PSNR with either
-share removed. Prints one JSON object.
+"""Where a trained run's held-out error sits, and how much of the gap to the reprojection oracle each part of the
+model holds. Prints one JSON object.
 
     python eval/heldout_error_budget.py RUN_DIR --scene bedroom --width 512
 
 RUN_DIR is a ``panorecon train`` output folder (metrics.json and point_cloud.ply); the held-out views are rebuilt
-from its config (count, resolution, field of view, seed) and placed in the cloud's frame by its heldout_scale,
-as the trainer placed them.
+from its config (count, resolution, field of view, seed; ``--heldout``/``--heldout-res`` override count and size)
+and placed in the cloud's frame by its heldout_scale, as the trainer placed them. Two readings:
+
+- shares: per held-out view, the share of the squared error in holes (pixels whose rendered alpha is below 0.9:
+  what the centre never saw and nothing covers) and in pixels whose rendered depth is more than 5 % off the true
+  depth (geometry, mostly at depth edges), and the mean PSNR with either share removed;
+- ``swaps``: the held-out scores (all-pixel PSNR; the co-visible pixels' PSNR, the oracle's and the gap,
+  ``splat/evaluate.oracle_scores``) of the trained Gaussians as they are and with one thing swapped for its truth
+  or removed, no retraining (``SWAPS``).
+
+The budget table of docs/benchmarks.md trains, per scene, the baseline and each retrained variant (``RETRAINS``)
+with ``panorecon train`` into OUT/<scene>/<variant>, reads every run on the baseline's held-out views, writes
+OUT/budget.json and prints the table (markdown):
+
+    python eval/heldout_error_budget.py table OUT --scenes bedroom beach --width 512 --res 64 --labels 240 \
+        --iters 1500 --teacher sim:relative --heldout 24
 """
 
 from __future__ import annotations
@@ -18,34 +30,173 @@ from pathlib import Path
 
 import numpy as np
 
+FLOATER_REL = 0.05  # a Gaussian whose centre is nearer than (1 - this) x the true distance along its ray: a floater
 
-def main(argv=None) -> dict:
+
+def _rays(model):
+    """(unit directions [N, 3] from the panorama centre to each Gaussian's mean, distances [N]) float64."""
+    m = model.means.detach().double().numpy()
+    r = np.linalg.norm(m, axis=1)
+    return m / np.maximum(r, 1e-12)[:, None], r
+
+
+def _true_distance(scene, u: np.ndarray, scale: float) -> np.ndarray:
+    """The scene's true ray distance along unit directions ``u`` [N, 3] (bilinear ERP sample: a slanted surface's
+    distance, not its pixel's steps), in the cloud's frame (truth / ``scale``); inf or NaN where the sample
+    touches sky or unknown pixels."""
+    from panorecon.geometry import sample_erp
+
+    return sample_erp(scene.distance.astype(np.float32), u, "linear").astype(np.float64) / scale
+
+
+def _replace(model, **params):
+    """A copy of ``model`` (float32) with the given parameters [N, ...] replaced (numpy or torch)."""
     import torch
 
-    from panorecon.scenes import load_scene
+    from panorecon.splat.model import PARAM_NAMES, GaussianModel
+
+    new = {
+        n: torch.as_tensor(np.asarray(params[n]) if n in params else getattr(model, n).detach().numpy())
+        for n in PARAM_NAMES
+    }
+    return GaussianModel(*[new[n].float().clone() for n in PARAM_NAMES])
+
+
+def snap_to_surface(model, scene, scale: float, keep: float = 0.0):
+    """Each Gaussian moved along its ray from the centre towards the true surface, to the distance
+    D + ``keep`` (|mean| - D) (``keep`` 0: onto it; 0.5: half its depth error left), and scaled by the same factor,
+    so the centre sees it as before (same direction, same angular size); Gaussians whose ray meets sky or no truth
+    stay. With ``keep`` > 0 the Gaussians along one ray keep their order in depth."""
+    u, r = _rays(model)
+    d = _true_distance(scene, u, scale)
+    with np.errstate(invalid="ignore"):  # sky: inf - inf
+        f = (d + keep * (r - d)) / np.maximum(r, 1e-12)
+    f = np.where(np.isfinite(f) & (f > 0), f, 1.0)
+    means = model.means.detach().double().numpy() * f[:, None]
+    return _replace(model, means=means, log_scales=model.log_scales.detach().double().numpy() + np.log(f)[:, None])
+
+
+def covariances(model) -> np.ndarray:
+    """Σ = R diag(s²) Rᵀ [N, 3, 3] float64 of every Gaussian (R from its wxyz quaternion, s its scales)."""
+    from panorecon.splat.rasterize.projection import quat_to_rotmat
+
+    R = quat_to_rotmat(model.quats.detach().double()).numpy()
+    s = np.exp(model.log_scales.detach().double().numpy())
+    return np.einsum("nij,nj,nkj->nik", R, s**2, R)
+
+
+def from_covariances(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(wxyz quaternions [N, 4], log scales [N, 3]) float64 of covariances [N, 3, 3] (eigen-decomposed; a
+    reflection turned into a rotation by flipping one axis)."""
+    from scipy.spatial.transform import Rotation
+
+    lam, V = np.linalg.eigh(cov)
+    V[np.linalg.det(V) < 0, :, 0] *= -1
+    q = Rotation.from_matrix(V).as_quat()  # xyzw
+    return np.concatenate([q[:, 3:], q[:, :3]], 1), 0.5 * np.log(np.maximum(lam, 1e-30))
+
+
+def clamp_along_ray(model):
+    """Each Gaussian's extent along its ray from the centre clamped to its thinnest axis: Σ' = A Σ A with
+    A = I + (k - 1) u uᵀ, k = min(1, s_min / sqrt(uᵀ Σ u)). A leaves the part of Σ across the ray as it was, so
+    the centre sees the Gaussian as before (to first order); only the depth the centre cannot see shrinks."""
+    u, _ = _rays(model)
+    cov = covariances(model)
+    radial = np.sqrt(np.einsum("ni,nij,nj->n", u, cov, u))
+    k = np.minimum(1.0, np.exp(model.log_scales.detach().double().numpy()).min(1) / radial)
+    A = np.eye(3) + (k - 1)[:, None, None] * np.einsum("ni,nj->nij", u, u)
+    quats, log_scales = from_covariances(A @ cov @ A)
+    keep = k >= 1  # already no deeper than thin: its own parameters, not their round trip
+    quats[keep] = model.quats.detach().double().numpy()[keep]
+    log_scales[keep] = model.log_scales.detach().double().numpy()[keep]
+    return _replace(model, quats=quats, log_scales=log_scales)
+
+
+def zero_higher_sh(model):
+    """The SH bands above degree 0 set to 0 (view-independent colour)."""
+    return _replace(model, shN=np.zeros(tuple(model.shN.shape), np.float32))
+
+
+def remove_floaters(model, scene, scale: float):
+    """Without the Gaussians whose centre is nearer the panorama centre than (1 - FLOATER_REL) x the true
+    distance along its ray (in front of the surface the centre sees; Gaussians behind it, the disocclusion
+    fill's among them, stay)."""
+    from panorecon.splat.model import PARAM_NAMES
+
+    u, r = _rays(model)
+    with np.errstate(invalid="ignore"):
+        floater = r < (1 - FLOATER_REL) * _true_distance(scene, u, scale)  # NaN truth: never a floater
+    return _replace(model, **{n: getattr(model, n).detach().numpy()[~floater] for n in PARAM_NAMES})
+
+
+TRUE_SKY = "true sky behind the Gaussians"
+# name -> the swap, (model, scene, scale) -> model; TRUE_SKY swaps the views' background instead
+SWAPS = {
+    "as trained": lambda m, scene, scale: m,
+    "depth error along the centre's rays halved": lambda m, scene, scale: snap_to_surface(m, scene, scale, 0.5),
+    "depth error along the centre's rays cut to 10 %": lambda m, scene, scale: snap_to_surface(m, scene, scale, 0.1),
+    "centres on the true surface (depth order lost)": snap_to_surface,
+    "extent along the centre's rays clamped": lambda m, scene, scale: clamp_along_ray(m),
+    "depth error halved and extent clamped": lambda m, scene, scale: clamp_along_ray(
+        snap_to_surface(m, scene, scale, 0.5)
+    ),
+    "SH bands above 0 zeroed": lambda m, scene, scale: zero_higher_sh(m),
+    "floaters removed": remove_floaters,
+    TRUE_SKY: lambda m, scene, scale: m,
+}
+
+
+def scores(model, views, cfg) -> dict:
+    """The trainer's held-out scores of ``model`` on ``views``: all-pixel PSNR (as ``splat/evaluate._evaluate``)
+    and ``oracle_scores`` on the co-visible pixels."""
+    import torch
+
+    from panorecon.splat.evaluate import _render, oracle_scores, psnr
+
+    ps, kept = [], []
+    with torch.no_grad():
+        for v in views:
+            img = _render(model, [v], cfg, model.sh_degree, "cpu")[0][0].clamp(0, 1)
+            ps.append(psnr(img, torch.from_numpy(v.rgb)))
+            kept.append((v, img.numpy()))
+    s = oracle_scores(kept)
+    return {"psnr": float(np.mean(ps)), **{k: s[k] for k in ("covisible_psnr", "oracle_psnr", "oracle_gap")}}
+
+
+def heldout_views(scene, metrics: dict, n: int | None = None, res: int | None = None) -> list:
+    """The held-out views of a run (``metrics``: its metrics.json): its count, size, field of view and seed unless
+    ``n`` / ``res`` are given, in the cloud's frame, over the sky environment the run was trained in front of."""
     from panorecon.splat.initial import sky_environment, view_background
     from panorecon.splat.labels import in_cloud_frame, make_heldout_views
-    from panorecon.splat.ply import load_ply
-    from panorecon.splat.trainer import TrainConfig, _render
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("run", type=Path)
-    ap.add_argument("--scene", required=True)
-    ap.add_argument("--width", type=int, required=True)
-    args = ap.parse_args(argv)
-    metrics = json.loads((args.run / "metrics.json").read_text())
     c = metrics["config"]
-    cfg = TrainConfig(res=c["res"], fov_deg=c["fov_deg"], backend="cpu")
-    scene = load_scene(args.scene, args.width)
     views = [
         in_cloud_frame(v, metrics["heldout_scale"])
-        for v in make_heldout_views(scene, c["heldout"], c["res"], c["fov_deg"], c["seed"])
+        for v in make_heldout_views(scene, n or c["heldout"], res or c["res"], c["fov_deg"], c["seed"])
     ]
     env = sky_environment(scene) if c["sky"] == "panorama" else None
-    model = load_ply(args.run / "point_cloud.ply")
-    rows = []
     for v in views:
         v.background = view_background(env, v.camera)
+    return views
+
+
+def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> dict:
+    """The budget of one run folder (module docstring)."""
+    import dataclasses
+
+    import torch
+
+    from panorecon.splat.evaluate import _render
+    from panorecon.splat.ply import load_ply
+    from panorecon.splat.trainer import TrainConfig
+
+    metrics = json.loads((run / "metrics.json").read_text())
+    c = metrics["config"]
+    views = heldout_views(scene, metrics, n, res)
+    cfg = TrainConfig(res=res or c["res"], fov_deg=c["fov_deg"], backend="cpu")
+    model = load_ply(run / "point_cloud.ply")
+    rows = []
+    for v in views:
         with torch.no_grad():
             img, alpha, depth, _ = _render(model, [v], cfg, model.sh_degree, "cpu")
         a = alpha[0, ..., 0].numpy()
@@ -53,7 +204,7 @@ def main(argv=None) -> dict:
         se = ((img[0].clamp(0, 1).numpy().astype(np.float64) - v.rgb) ** 2).mean(-1)  # float64 sums
         hole = a < 0.9
         with np.errstate(invalid="ignore", divide="ignore"):
-            off = ~hole & (np.abs(z - v.depth) > 0.05 * v.depth)  # sky (inf truth) is never "off"
+            off = ~hole & (np.abs(z - v.depth) > 0.05 * v.depth)  # sky (NaN truth) is never "off"
         rows.append(
             {
                 "psnr": float(10 * np.log10(1 / se.mean())),
@@ -65,15 +216,115 @@ def main(argv=None) -> dict:
             }
         )
     mse = np.array([r.pop("_mse") for r in rows])
-    out = {
-        "run": str(args.run),
+    scale = metrics["heldout_scale"]
+    true_sky = [  # the true render's own colour behind the Gaussians where it is sky (NaN true depth)
+        dataclasses.replace(v, background=np.where(np.isnan(v.depth)[..., None], v.rgb, v.background))
+        if v.background is not None
+        else v
+        for v in views
+    ]
+    swaps = {}
+    for name, swap in SWAPS.items():
+        swapped = swap(model, scene, scale)
+        swaps[name] = scores(swapped, true_sky if name == TRUE_SKY else views, cfg)
+        swaps[name]["gaussians"] = len(swapped)
+    return {
+        "run": str(run),
         "views": rows,
         "psnr": float(np.mean([r["psnr"] for r in rows])),
         "hole_error_share": float(mse[:, 1].sum() / mse[:, 0].sum()),
         "depth_off_error_share": float(mse[:, 2].sum() / mse[:, 0].sum()),
         "psnr_without_hole_error": float(np.mean(10 * np.log10(1 / (mse[:, 0] - mse[:, 1])))),
         "psnr_without_depth_off_error": float(np.mean(10 * np.log10(1 / (mse[:, 0] - mse[:, 2])))),
+        "swaps": swaps,
     }
+
+
+# name -> `panorecon train` options changed from the baseline (one thing retrained at a time)
+RETRAINS = {
+    "no disocclusion fill": lambda a: ["--disocclusion-fill-deg", "0"],
+    "labels at 2x resolution": lambda a: ["--res", str(2 * a.res)],
+    "near-true depth teacher (sim:clean)": lambda a: ["--teacher", "sim:clean"],
+}
+
+
+def table(argv=None) -> dict:
+    from panorecon.cli import main as panorecon
+    from panorecon.scenes import load_scene
+
+    ap = argparse.ArgumentParser(description="the gap budget table (module docstring)")
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--scenes", nargs="+", required=True)
+    ap.add_argument("--width", type=int, default=512)
+    ap.add_argument("--res", type=int, default=64)
+    ap.add_argument("--labels", type=int, default=240)
+    ap.add_argument("--iters", type=int, default=1500)
+    ap.add_argument("--teacher", default="sim:relative")
+    ap.add_argument("--heldout", type=int, default=24, help="held-out views every run is read on")
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    base = ["--width", str(a.width), "--source", "fibonacci", "--teacher", a.teacher, "--res", str(a.res)]
+    base += ["--labels", str(a.labels), "--iters", str(a.iters), "--seed", str(a.seed), "--heldout", str(a.heldout)]
+    base += ["--checkpoint-every", "0", "--history-every", "0", "--backend", "cpu", "--device", "cpu", "--no-progress"]
+    out = {"settings": {k: v for k, v in vars(a).items() if k != "out"}, "scenes": {}}
+    for name in a.scenes:
+        scene = load_scene(name, a.width)
+        runs = {}
+        for variant, extra in {"baseline": lambda a: [], **RETRAINS}.items():
+            folder = a.out / name / variant.split(" (")[0].replace(" ", "_")
+            if not (folder / "metrics.json").is_file():  # a finished run is read again, not retrained
+                if panorecon(["train", name, *base, *extra(a), "--out", str(folder), "--overwrite"]) != 0:
+                    raise SystemExit(f"panorecon train failed for {name} / {variant}")
+            runs[variant] = read_run(folder, scene, a.heldout, a.res)
+        out["scenes"][name] = runs
+    (a.out / "budget.json").write_text(json.dumps(out, indent=1))
+    print(markdown(out))
+    return out
+
+
+def markdown(budget: dict) -> str:
+    """The budget table: per scene, each swap's and retrained variant's held-out PSNR (all pixels) and gap to the
+    oracle on the co-visible pixels, each with its change against the baseline as trained."""
+    scenes = list(budget["scenes"])
+    head = ["what is swapped for its truth or removed"]
+    for s in scenes:
+        head += [f"{s}: held-out PSNR (Δ)", f"{s}: gap to oracle (Δ)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = [("baseline", n) for n in SWAPS] + [(v, "as trained") for v in RETRAINS]
+    ref = {s: budget["scenes"][s]["baseline"]["swaps"]["as trained"] for s in scenes}
+    for run, swap in rows:
+        label = swap if run == "baseline" else f"retrained: {run}"
+        cells = [label]
+        for s in scenes:
+            r = budget["scenes"][s][run]["swaps"][swap]
+            for key in ("psnr", "oracle_gap"):
+                d = r[key] - ref[s][key]
+                cells.append(
+                    f"{r[key]:.2f}" if (run, swap) == ("baseline", "as trained") else f"{r[key]:.2f} ({d:+.2f})"
+                )
+        lines.append("| " + " | ".join(cells) + " |")
+    oracle = ", ".join(
+        f"{s} {ref[s]['oracle_psnr']:.2f} dB against the Gaussians' {ref[s]['covisible_psnr']:.2f} dB" for s in scenes
+    )
+    return "\n".join(lines) + f"\n\nOn the co-visible pixels, as trained: oracle {oracle}."
+
+
+def main(argv=None) -> dict:
+    import sys
+
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "table":
+        return table(argv[1:])
+    from panorecon.scenes import load_scene
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run", type=Path)
+    ap.add_argument("--scene", required=True)
+    ap.add_argument("--width", type=int, required=True)
+    ap.add_argument("--heldout", type=int, default=None, help="held-out views (default: the run's)")
+    ap.add_argument("--heldout-res", type=int, default=None, help="their size in pixels (default: the run's)")
+    args = ap.parse_args(argv)
+    out = read_run(args.run, load_scene(args.scene, args.width), args.heldout, args.heldout_res)
     print(json.dumps(out))
     return out
 

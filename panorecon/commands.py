@@ -261,6 +261,7 @@ def train(cfg: K.TrainCommandConfig, claimed: bool = False) -> int:
     from .device import resolve_device
     from .pipeline import teacher_depth_fn
     from .sources import cloud_scale
+    from .splat.evaluate import heldout_summary
     from .splat.trainer import train as fit
 
     device = resolve_device(cfg.device)
@@ -287,17 +288,12 @@ def train(cfg: K.TrainCommandConfig, claimed: bool = False) -> int:
         device=device,
         heldout_scale=cloud_scale(report),
     )
-    held = m["held-out"]
-    held_txt = (
-        f"{held['psnr']:.2f} dB"
-        if isinstance(held, dict) and isinstance(held["psnr"], float)
-        else (held["psnr"] if isinstance(held, dict) else held)
-    )
     lp = m["pseudo-label"]["lpips"]
     lp_txt = f"{lp:.3f}" if isinstance(lp, float) else lp
     print(
         f"{scene.name} / {src.source}: pseudo-label PSNR {m['pseudo-label']['psnr']:.2f} dB, SSIM "
-        f"{m['pseudo-label']['ssim']:.3f}, LPIPS {lp_txt}; held-out PSNR {held_txt}; {m['gaussians']} Gaussians; "
+        f"{m['pseudo-label']['ssim']:.3f}, LPIPS {lp_txt}; {heldout_summary(m['held-out'])}; "
+        f"{m['gaussians']} Gaussians; "
         f"{m['seconds']['total']:.1f} s ({m['seconds']['train']:.1f} s training); peak {m['peak_rss_mb']:.0f} MB; "
         f"{m['backend']} on {m['device_name']} -> {cfg.out}"
     )

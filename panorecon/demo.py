@@ -68,7 +68,6 @@ def demo_pictures(
         "panorama_ws_psnr": ws["ws_psnr"],
         "panorama_ws_ssim": ws["ws_ssim"],
     }
-    return {"panorama_psnr": math.inf if mse == 0 else 10 * math.log10(1 / mse)}
 
 
 def run_demo(cfg) -> int:
@@ -78,12 +77,14 @@ def run_demo(cfg) -> int:
     renders at 256 px and the panorama rendered back from the Gaussians (panorama.png). Its settings are explicit
     here, not train's defaults."""
     import dataclasses
+    import json
     import time
 
     from . import commands
     from . import configs as K
     from .geometry import PointCloud
     from .scenes import DEFAULT_SCENE
+    from .splat.evaluate import heldout_summary
 
     t0 = time.perf_counter()
     out = Path(cfg.out)
@@ -104,9 +105,10 @@ def run_demo(cfg) -> int:
         cloud, shot = out / f"{name}_cloud.ply", str(out / f"{name}_cloud.png")
         commands.inspect_cloud(K.InspectConfig(cloud=str(cloud), screenshot=shot, point_size=2.0, clip_z=clip_z))
     p = demo_pictures(scene.load(), out)
+    held = json.loads((out / "metrics.json").read_text())["held-out"]
     print(
         f"panorama rendered back from the Gaussians: PSNR {p['panorama_psnr']:.2f} dB against the input -> "
-        f"{out / 'panorama.png'}; held-out renders at 256 px -> {out / 'renders'}; demo took "
-        f"{time.perf_counter() - t0:.0f} s"
+        f"{out / 'panorama.png'}; {heldout_summary(held)}; held-out renders at 256 px -> {out / 'renders'}; demo "
+        f"took {time.perf_counter() - t0:.0f} s"
     )
     return 0

@@ -151,6 +151,11 @@ def test_demo_runs_the_main_job(tmp_path, capfd, monkeypatch):
     captured = capfd.readouterr()
     assert f"PSNR {psnr:.2f} dB" in captured.out
     assert "bad X server" not in captured.err and "panorama rendered back" in captured.out
+    # the summary's held-out part: the all-pixel PSNR, then the co-visible pixels against the oracle and the gap
+    held = json.loads((out / "metrics.json").read_text())["held-out"]
+    line = next(ln for ln in captured.out.splitlines() if "panorama rendered back" in ln)
+    assert f"held-out PSNR {held['psnr']:.2f} dB (co-visible pixels" in line
+    assert f"gap {held['oracle_gap']:.2f} dB)" in line
 
 
 def test_train_command(tmp_path, capsys):

@@ -81,8 +81,9 @@ def score_ply(ply: Path, labels, heldout, res: int, fov_deg: float, background) 
     import numpy as np
     import torch
 
+    from panorecon.splat.evaluate import _evaluate
     from panorecon.splat.ply import load_ply
-    from panorecon.splat.trainer import TrainConfig, _evaluate
+    from panorecon.splat.trainer import TrainConfig
 
     model = load_ply(ply)
     bad = int((~torch.isfinite(model.means).all(1)).sum())

@@ -325,10 +325,12 @@ def _num(v):
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
 
 
-# the held-out scores of other panoramas beside the raw psnr_ho: after a per-view colour alignment, and the
-# reprojection oracle (the training panorama's colour at the true points) raw and aligned; results.csv column
-# heldout_<key>, with heldout_<key>_note holding the reason where it reads n/a
-HELDOUT_ALIGNED_KEYS = ("aligned_psnr", "aligned_ssim", "aligned_lpips", "oracle_psnr", "oracle_aligned_psnr")
+# the held-out scores beside the all-pixel psnr_ho (splat/evaluate.py): on every held-out view with a true
+# distance, the co-visible pixels' PSNR, the reprojection oracle's (the training panorama's colour at the true
+# points) and the gap between them; on other panoramas also after a per-view colour alignment. results.csv
+# column heldout_<key>, with heldout_<key>_note holding the reason where it reads n/a
+HELDOUT_ORACLE_KEYS = ("covisible_psnr", "oracle_psnr", "oracle_gap", "covisible_fraction")
+HELDOUT_ALIGNED_KEYS = ("aligned_psnr", "aligned_ssim", "aligned_lpips", "oracle_aligned_psnr", "oracle_aligned_gap")
 
 
 def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: bool, train_cached: bool) -> dict:
@@ -395,11 +397,14 @@ def result_row(row: Row, pts: dict, tr: dict | None, env: dict, points_cached: b
             elif isinstance(block.get("psnr"), str):  # e.g. held-out panoramas with too few co-visible pixels
                 rec[f"psnr_{tag}_note"] = block["psnr"]
         held = m.get("held-out")
-        if isinstance(held, dict) and "aligned_psnr" in held:  # held-out views of other panoramas (trainer.py)
-            for key in HELDOUT_ALIGNED_KEYS:
-                rec[f"heldout_{key}"] = _num(held.get(key))
-                if isinstance(held.get(key), str):
-                    rec[f"heldout_{key}_note"] = held[key]
+        held = held if isinstance(held, dict) else {}
+        keys = (HELDOUT_ORACLE_KEYS if "oracle_gap" in held else ()) + (  # runs before the gap have none
+            HELDOUT_ALIGNED_KEYS if "aligned_psnr" in held else ()  # held-out views of other panoramas
+        )
+        for key in keys:
+            rec[f"heldout_{key}"] = _num(held.get(key))
+            if isinstance(held.get(key), str):
+                rec[f"heldout_{key}_note"] = held[key]
         rec.update(
             device=m.get("device", "cpu"),
             device_name=m.get("device_name", "unrecorded"),

@@ -30,16 +30,18 @@ from ..geometry import (
 class LabelView:
     """camera; rgb [h, w, 3] float32 in [0, 1]; depth [h, w] float32 z-depth (metres or the teacher's units,
     NaN unknown) or None; mask [h, w] bool: the pixels a score may use (None: all); background [h, w, 3] float32
-    in [0, 1] composited behind the Gaussians (the sky environment, see splat/initial.py) or None; oracle
-    [h, w, 3] float32 in [0, 1], NaN outside the mask, or None: for a held-out view of another panorama, the
-    training panorama's colour at each masked pixel's true 3D point (the best any reconstruction from that
-    panorama can show there, its capture's exposure included)."""
+    in [0, 1] composited behind the Gaussians (the sky environment, see splat/initial.py) or None; covisible
+    [h, w] bool or None: for a held-out view, the pixels whose true 3D point the training panorama also sees
+    (``reprojection_oracle``; a real panorama's ``mask`` itself); oracle [h, w, 3] float32 in [0, 1], NaN
+    outside ``covisible``, or None: the training panorama's colour at each co-visible pixel's true 3D point (the
+    best any reconstruction from that panorama can show there, its capture's exposure included)."""
 
     camera: PinholeCamera
     rgb: np.ndarray
     depth: np.ndarray | None = None
     mask: np.ndarray | None = None
     background: np.ndarray | None = None
+    covisible: np.ndarray | None = None
     oracle: np.ndarray | None = None
 
 
@@ -70,9 +72,50 @@ def make_pseudo_labels(
     ]
 
 
+# A pixel's true 3D point X counts as seen by the training panorama when |X| (its distance from the panorama
+# centre) is within this fraction of the panorama's true distance along X's direction.
+COVISIBLE_REL_TOL = 0.05
+# A held-out view is scored on its co-visible pixels only when it has at least this many
+# (a PSNR over fewer is noise: the relative error of a mean squared error over n pixels is about sqrt(2 / n),
+# 0.09 = 0.4 dB at 256); with no such view the held-out score reads n/a (``covisible_shortfall``).
+MIN_COVISIBLE_PIXELS = 256
+
+
+def reprojection_oracle(
+    scene, origin: np.ndarray, rays: np.ndarray, distance: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """What the training panorama shows of the points a held-out camera sees: the camera at ``origin`` [3]
+    (metres, the scene's frame: the panorama centre at 0) sees along unit ``rays`` [h, w, 3] the true points at
+    ray distance ``distance`` [h, w] (metres; ``inf`` for sky, NaN unknown).
+
+    Returns (covisible [h, w] bool, oracle [h, w, 3] float32 in [0, 1], NaN outside ``covisible``). A finite
+    point X is co-visible when the scene's true distance (``scene.distance``, nearest ERP sample) along X / |X|
+    is within COVISIBLE_REL_TOL x |X| of |X| (otherwise something nearer the centre hides it, or the panorama
+    does not know it); a point at infinity (sky) when the panorama also sees infinity along the same ray. The
+    oracle is the panorama's colour (``scene.rgb``, bilinear) along that direction from its centre."""
+    rays = np.asarray(rays, np.float64)
+    d = np.asarray(distance, np.float64)
+    with np.errstate(invalid="ignore"):
+        x = np.asarray(origin, np.float64) + rays * d[..., None]
+    far = np.isposinf(d)
+    r = np.where(far, np.inf, np.linalg.norm(np.where(far[..., None], 0.0, x), axis=-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        direction = np.where(far[..., None], rays, x / r[..., None])
+    ok = np.isfinite(direction).all(-1) & (r > 0)
+    seen = np.full(d.shape, np.nan)
+    seen[ok] = sample_erp(scene.distance.astype(np.float32), direction[ok], "nearest")
+    with np.errstate(invalid="ignore"):
+        near = np.isfinite(d) & np.isfinite(seen) & (np.abs(seen - r) <= COVISIBLE_REL_TOL * r)
+    covisible = ok & (near | (far & np.isposinf(seen)))
+    oracle = np.full((*d.shape, 3), np.nan, np.float32)
+    oracle[covisible] = sample_erp(scene.rgb, direction[covisible], "linear").astype(np.float32) / 255.0
+    return covisible, oracle
+
+
 def make_heldout_views(scene, n_views: int, size: int, fov_deg: float = 60.0, seed: int = 0) -> list[LabelView]:
     """True renders from random positions at 30-70 % of the free-space radius, looking in random directions
-    within 30 degrees of the horizon, with their true z-depth."""
+    within 30 degrees of the horizon, with their true z-depth; on a scene with a true distance, their co-visible
+    pixels and reprojection oracle too (``reprojection_oracle``)."""
     if scene.world is None:
         raise ValueError(f"scene {scene.name!r} has no ground-truth world: held-out views need a synthetic scene")
     rng = np.random.default_rng(seed)
@@ -86,10 +129,22 @@ def make_heldout_views(scene, n_views: int, size: int, fov_deg: float = 60.0, se
         forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         cam = PinholeCamera(K, viewmat_from_pose(look_at_rotation(forward), p), size, size)
         r = scene.world.render_view(cam)
+        covisible, oracle = (None, None) if scene.distance is None else _true_oracle(scene, cam, r)
         views.append(
-            LabelView(cam, r.rgb.astype(np.float32) / 255.0, np.where(r.sky, np.nan, r.depth_z).astype(np.float32))
+            LabelView(
+                cam,
+                r.rgb.astype(np.float32) / 255.0,
+                np.where(r.sky, np.nan, r.depth_z).astype(np.float32),
+                covisible=covisible,
+                oracle=oracle,
+            )
         )
     return views
+
+
+def _true_oracle(scene, cam: PinholeCamera, render) -> tuple[np.ndarray, np.ndarray]:
+    """``reprojection_oracle`` of a true render (``World.render_view``) of ``cam``: its ray distance, inf for sky."""
+    return reprojection_oracle(scene, cam.position, cam.world_rays(), np.where(render.sky, np.inf, render.distance))
 
 
 def in_cloud_frame(view: LabelView, scale: float) -> LabelView:
@@ -104,13 +159,6 @@ def in_cloud_frame(view: LabelView, scale: float) -> LabelView:
     return dataclasses.replace(view, camera=cam, depth=depth)
 
 
-COVISIBLE_REL_TOL = 0.05
-# A held-out view of another panorama is scored on its co-visible pixels only when it has at least this many
-# (a PSNR over fewer is noise: the relative error of a mean squared error over n pixels is about sqrt(2 / n),
-# 0.09 = 0.4 dB at 256); with no such view the held-out score reads n/a (``covisible_shortfall``).
-MIN_COVISIBLE_PIXELS = 256
-
-
 def make_panorama_heldout_views(
     scene, panoramas, n_views: int, size: int, fov_deg: float = 60.0, seed: int = 0
 ) -> list[LabelView]:
@@ -120,11 +168,9 @@ def make_panorama_heldout_views(
     scene-frame direction to that panorama's own frame, rgb [H, W, 3] uint8, ray distance [H, W] float32 metres,
     NaN unknown)] (``scenes.datasets.heldout_panoramas``). View i stands at panorama i mod K looking in a random
     direction within 30 degrees of the horizon (scene frame); its rgb and z-depth are sampled from that panorama
-    along the rotated rays. Its mask keeps the pixels the training panorama sees too: the pixel's true 3D point
-    X (from the held-out panorama's depth) must be valid there and lie, seen from the scene's centre, within
-    5 % of the scene's own true distance along X's direction (otherwise it is occluded from, or unknown to,
-    the panorama the Gaussians were trained on). Its oracle is the training panorama's colour (``scene.rgb``,
-    bilinear) along the direction of X from the scene's centre, on the masked pixels. The scene needs a true
+    along the rotated rays. Its mask (and ``covisible``) keeps the pixels the training panorama sees too, and
+    its oracle is the training panorama's colour there (``reprojection_oracle`` of the true 3D points X from the
+    held-out panorama's depth; a pixel without a finite depth is never co-visible). The scene needs a true
     distance."""
     if scene.distance is None or not panoramas:
         raise ValueError(f"scene {scene.name!r}: held-out panoramas need the scene's true depth and other panoramas")
@@ -139,16 +185,11 @@ def make_panorama_heldout_views(
         rays = cam.world_rays()
         local = rays @ np.asarray(rotation, np.float64).T  # the same rays in that panorama's frame
         d = sample_erp(dist.astype(np.float32), local, "nearest").astype(np.float64)
-        x = np.asarray(offset, float) + rays * d[..., None]
-        r = np.linalg.norm(x, axis=-1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            seen = sample_erp(scene.distance.astype(np.float32), x / r[..., None], "nearest").astype(np.float64)
-            mask = np.isfinite(d) & np.isfinite(seen) & (np.abs(seen - r) <= COVISIBLE_REL_TOL * r)
+        d[~np.isfinite(d)] = np.nan  # a real panorama's depth never says "sky": unknown, never co-visible
+        mask, oracle = reprojection_oracle(scene, offset, rays, d)
         img = sample_erp(rgb, local, "linear").astype(np.float32) / 255.0
         z = np.where(mask, d / cam.z_to_distance_factor(), np.nan).astype(np.float32)
-        oracle = np.full(img.shape, np.nan, np.float32)
-        oracle[mask] = sample_erp(scene.rgb, x[mask] / r[mask][:, None], "linear").astype(np.float32) / 255.0
-        views.append(LabelView(cam, img, z, mask, oracle=oracle))
+        views.append(LabelView(cam, img, z, mask, covisible=mask, oracle=oracle))
     return views
 
 

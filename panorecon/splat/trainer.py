@@ -7,7 +7,6 @@ import hashlib
 import json
 import logging
 import math
-import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,8 +21,8 @@ from ..checks import opt
 from ..device import device_record, reset_peak_memory, resolve_device, synchronize
 from ..geometry import PointCloud
 from ..io import peak_rss_mb, write_image, write_json
-from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import checkpoint_inputs, load_checkpoint, save_checkpoint
+from .evaluate import _cameras, _evaluate, _heldout_psnr, _render, best_heldout, heldout_plateau, psnr
 from .initial import (
     disocclusion_fill,
     points_for_resolution,
@@ -32,18 +31,16 @@ from .initial import (
     view_background,
 )
 from .labels import (
-    MIN_COVISIBLE_PIXELS,
-    LabelView,
     covisible_shortfall,
     in_cloud_frame,
     make_heldout_views,
     make_panorama_heldout_views,
     make_pseudo_labels,
 )
-from .losses import ssim, total_loss
+from .losses import total_loss
 from .model import PARAM_NAMES, GaussianModel
 from .ply import save_ply
-from .rasterize import BACKENDS, rasterize, resolve_backend
+from .rasterize import BACKENDS, resolve_backend
 from .strategy import STRATEGIES, edit_parameters
 
 log = logging.getLogger("panorecon.train")
@@ -190,225 +187,6 @@ def fill_join_step(cfg: TrainConfig) -> int:
     share = math.asin(math.sin(half_fov) ** 2) / math.pi  # the view's solid angle over 4 pi
     step = math.ceil(round(cfg.disocclusion_fill_visits / share, 6))  # rounded: sin(45 deg)^2 is 0.5 + 1 ulp
     return step if 0 < step < cfg.iters / 2 else 0
-
-
-def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    mse = float(torch.mean((a - b) ** 2))
-    return float("inf") if mse == 0 else 10 * math.log10(1.0 / mse)
-
-
-def _cameras(views: list[LabelView], device) -> tuple[torch.Tensor, torch.Tensor]:
-    """-> viewmats [V,4,4], Ks [V,3,3] float32 on ``device``."""
-    V = torch.tensor(np.stack([v.camera.viewmat for v in views]), dtype=torch.float32, device=device)
-    K = torch.tensor(np.stack([v.camera.K for v in views]), dtype=torch.float32, device=device)
-    return V, K
-
-
-def _render(
-    model: GaussianModel,
-    views: list[LabelView],
-    cfg: TrainConfig,
-    sh_degree: int,
-    backend: str,
-    return_contrib: bool = False,
-    cameras=None,
-    background=None,
-    res: int | None = None,
-):
-    """Render ``views`` (their cameras given as ``cameras`` = (viewmats, Ks) when already on the device) over
-    their sky background (``background`` [V, h, w, 3] when already on the device), ``res`` pixels square
-    (default ``cfg.res``; another size needs ``cameras`` and ``background`` of that size)."""
-    dev = model.means.device
-    V, K = cameras if cameras is not None else _cameras(views, dev)
-    size = res or cfg.res
-    img, alpha, depth, meta = rasterize(
-        model.means,
-        model.quats,
-        model.scales(),
-        model.opacities(),
-        (model.sh0, model.shN),  # the cpu backend reads both in place: no [N, 16, 3] concatenation per step
-        V,
-        K,
-        size,
-        size,
-        sh_degree=sh_degree,
-        backend=backend,
-        return_contrib=return_contrib,
-    )
-    if background is None and views[0].background is not None:  # the sky environment (splat/initial.py)
-        background = torch.from_numpy(np.stack([v.background for v in views])).to(dev)
-    if background is not None:
-        img = img + (1 - alpha) * background
-    return img, alpha, depth, meta
-
-
-def _heldout_psnr(model, views, cfg, backend) -> float:
-    """Mean PSNR (dB) of the held-out views, the cheap history sample (no SSIM, no LPIPS); masked views (other
-    panoramas) over their co-visible pixels, those with fewer than MIN_COVISIBLE_PIXELS left out, as in
-    ``_evaluate_masked``. Call it only when ``covisible_shortfall(views)`` is None."""
-    with torch.no_grad():
-        return float(np.mean([p for p in (_view_psnr(model, v, cfg, backend) for v in views) if p is not None]))
-
-
-def _view_psnr(model, v, cfg, backend) -> float | None:
-    """PSNR (dB) of one view over its mask (all pixels without one); None below MIN_COVISIBLE_PIXELS."""
-    if v.mask is not None and int(v.mask.sum()) < MIN_COVISIBLE_PIXELS:
-        return None
-    return _render_psnr(_render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1), v)
-
-
-def _render_psnr(img: torch.Tensor, v: LabelView) -> float:
-    """PSNR (dB) of a render [h, w, 3] (clamped to [0, 1]) against view ``v`` over its mask (all pixels without)."""
-    t = torch.from_numpy(v.rgb).to(img.device)
-    if v.mask is None:
-        return psnr(img, t)
-    m = torch.from_numpy(v.mask).to(img.device)
-    return psnr(img[m], t[m])
-
-
-def _evaluate(model, views, cfg, backend) -> dict:
-    if not views:
-        return {}
-    if any(v.mask is not None for v in views):
-        return _evaluate_masked(model, views, cfg, backend)
-    net = lpips_or_reason(cfg.res)
-    ps, ss, lp = [], [], []
-    with torch.no_grad():
-        for v in views:
-            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1).cpu()
-            t = torch.from_numpy(v.rgb)
-            ps.append(psnr(img, t))
-            ss.append(float(ssim(img, t)))
-            if not isinstance(net, str):
-                lp.append(lpips_distance(net, img, t))
-    return {
-        "psnr": float(np.mean(ps)),
-        "ssim": float(np.mean(ss)),
-        "lpips": float(np.mean(lp)) if lp else net,
-        "views": len(views),
-    }
-
-
-def _evaluate_masked(model, views, cfg, backend) -> dict:
-    """PSNR over each view's masked pixels (the co-visible ones of a real held-out panorama), averaged over the
-    views with at least MIN_COVISIBLE_PIXELS of them ('n/a: <reason>' with none); SSIM and LPIPS need whole
-    windows, so they read n/a. Beside it (``_aligned_scores``): the render after a per-view affine colour
-    alignment onto the held-out image, and the reprojection oracle (the training panorama's own colour at the
-    true 3D points) raw and aligned: the ceiling the raw number is read against."""
-    ps, pixels, kept = [], 0, []
-    with torch.no_grad():
-        for v in views:
-            if v.mask is not None and int(v.mask.sum()) < MIN_COVISIBLE_PIXELS:
-                continue
-            img = _render(model, [v], cfg, model.sh_degree, backend)[0][0].clamp(0, 1)
-            ps.append(_render_psnr(img, v))
-            pixels += int(v.mask.sum())
-            kept.append((v, img.cpu().numpy()))
-    reason = "n/a: held-out real panoramas are scored on their co-visible pixels only (PSNR)"
-    return {
-        "psnr": float(np.mean(ps)) if ps else covisible_shortfall(views),
-        "ssim": reason,
-        "lpips": reason,
-        "views": len(ps),
-        "pixels": pixels,
-        "min_pixels_per_view": MIN_COVISIBLE_PIXELS,
-        "protocol": "other panoramas of the space, pixels the training "
-        "panorama also sees (true distances agree within 5 %)",
-        "covisible_fraction": sum(int(v.mask.sum()) for v in views) / float(sum(v.mask.size for v in views)),
-        **_aligned_scores(kept, lpips_or_reason(cfg.res) if kept else None, covisible_shortfall(views)),
-    }
-
-
-HELDOUT_SCORE_MEANING = {
-    "psnr": "raw: the Gaussians' render against the held-out panorama's view, co-visible pixels",
-    "aligned_psnr": "the render after an affine 3x4 colour transform (RGB -> RGB + offset) fitted per view by "
-    "least squares (float64) on the co-visible pixels, render mapped onto the held-out image (Mip-NeRF 360 "
-    "color_correct, affine)",
-    "aligned_ssim": "SSIM of the aligned render over the 11x11 windows wholly inside the co-visible pixels",
-    "aligned_lpips": "LPIPS of the aligned render, only on views whose every pixel is co-visible",
-    "oracle_psnr": "reprojection oracle: the training panorama's colour at each co-visible pixel's true 3D "
-    "point (perfect geometry, the training capture's exposure), raw",
-    "oracle_aligned_psnr": "the reprojection oracle after the same per-view colour alignment",
-}
-
-
-def _aligned_scores(kept: list, net, shortfall: str | None) -> dict:
-    """The aligned and oracle scores of masked held-out views: ``kept`` [(view, render [h, w, 3] float32 in
-    [0, 1])] (the views with MIN_COVISIBLE_PIXELS co-visible pixels), ``net`` the LPIPS network or its n/a
-    reason. Each is the mean over the views where it could be computed, with its view count; 'n/a: <reason>'
-    (the first view's) where none could."""
-    from ..metrics.aligned import apply_color_affine, fit_color_affine, masked_psnr, masked_ssim
-
-    vals = {k: [] for k in ("aligned_psnr", "aligned_ssim", "aligned_lpips", "oracle_psnr", "oracle_aligned_psnr")}
-    why = {}
-    for v, img in kept:
-        m, truth = v.mask, v.rgb.astype(np.float64)
-        results = {}
-        M = fit_color_affine(img[m], truth[m])
-        if isinstance(M, str):
-            results.update(aligned_psnr=M, aligned_ssim=M, aligned_lpips=M)
-        else:
-            aligned = apply_color_affine(img, M)
-            results["aligned_psnr"] = masked_psnr(aligned, truth, m)
-            results["aligned_ssim"] = masked_ssim(aligned, truth, m)
-            if isinstance(net, str):
-                results["aligned_lpips"] = net
-            elif not m.all():
-                results["aligned_lpips"] = (
-                    f"n/a: LPIPS needs every pixel of a view; {int(m.sum())} of {m.size} are co-visible"
-                )
-            else:
-                t32 = lambda a: torch.from_numpy(a.astype(np.float32))  # noqa: E731
-                results["aligned_lpips"] = lpips_distance(net, t32(aligned), t32(truth))
-        if v.oracle is None:
-            results["oracle_psnr"] = results["oracle_aligned_psnr"] = "n/a: the view has no reprojection oracle"
-        else:  # NaN outside the mask: never selected
-            results["oracle_psnr"] = masked_psnr(v.oracle, truth, m)
-            Mo = fit_color_affine(v.oracle[m], truth[m])
-            results["oracle_aligned_psnr"] = (
-                Mo if isinstance(Mo, str) else masked_psnr(apply_color_affine(v.oracle, Mo), truth, m)
-            )
-        for k, r in results.items():
-            if isinstance(r, str):
-                why.setdefault(k, r)
-            else:
-                vals[k].append(r)
-    out = {}
-    for k, xs in vals.items():
-        out[k] = float(np.mean(xs)) if xs else why.get(k, shortfall or "n/a: no held-out view to score")
-        out[f"{k}_views"] = len(xs)
-    out["meaning"] = HELDOUT_SCORE_MEANING
-    return out
-
-
-def best_heldout(history: list[dict], reason: str | None = None) -> dict | str:
-    """The history sample with the highest held-out PSNR: its iteration, training seconds, Gaussians and PSNR
-    (what a run's quality-against-time reads as), or 'n/a: <reason>' (``reason`` if given) when none has one."""
-    samples = [h for h in history if "heldout_psnr" in h]
-    if not samples:
-        return reason or "n/a: no held-out PSNR in the history (no held-out views, or history_every = 0)"
-    b = max(samples, key=lambda h: h["heldout_psnr"])
-    return {k: b[k] for k in ("iteration", "seconds", "gaussians", "heldout_psnr") if k in b}
-
-
-def heldout_plateau(history: list[dict], reason: str | None = None) -> dict | str:
-    """Held-out PSNR over the second half of the run's history samples (iteration > half the last one): their
-    number, mean, sample SD, min and max (dB). The level a run settles at and its step-to-step wobble, which
-    ``heldout_best``, a maximum over those noisy samples, reads above; 'n/a: <reason>' with fewer than 2 such
-    samples."""
-    samples = [h for h in history if "heldout_psnr" in h]
-    late = [h for h in samples if h["iteration"] > samples[-1]["iteration"] / 2] if samples else []
-    if len(late) < 2:
-        return reason or "n/a: fewer than 2 held-out PSNR samples in the second half of the history"
-    psnr = [h["heldout_psnr"] for h in late]
-    return {
-        "from_iteration": late[0]["iteration"],
-        "samples": len(psnr),
-        "mean": statistics.fmean(psnr),
-        "sd": statistics.stdev(psnr),
-        "min": min(psnr),
-        "max": max(psnr),
-    }
 
 
 def _adam(model: GaussianModel, groups) -> torch.optim.Adam:

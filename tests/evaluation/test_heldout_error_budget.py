@@ -37,3 +37,82 @@ def test_budget_reads_the_trainers_heldout_views(run):
     assert budget["psnr_without_hole_error"] >= budget["psnr"]
     assert budget["psnr_without_depth_off_error"] >= budget["psnr"]
     assert any(v["depth_off_pixels"] > 0 for v in budget["views"])  # 30 steps at 32² leave geometry to fix
+
+
+def test_as_trained_reads_the_trainers_gap(run):
+    out, metrics = run
+    budget = script.main([str(out), "--scene", "bedroom", "--width", "128"])
+    held, as_trained = metrics["held-out"], budget["swaps"]["as trained"]
+    for key in ("psnr", "covisible_psnr", "oracle_psnr", "oracle_gap"):
+        assert as_trained[key] == pytest.approx(held[key], abs=1e-3), key
+    assert set(budget["swaps"]) == set(script.SWAPS)
+    # the oracle is the scene's, whatever is swapped in the model
+    assert len({round(s["oracle_psnr"], 9) for s in budget["swaps"].values()}) == 1
+
+
+def _model(means, scales, quats=None):
+    import torch
+
+    from panorecon.splat.model import GaussianModel
+
+    n = len(means)
+    q = torch.tensor([[1.0, 0, 0, 0]] * n) if quats is None else torch.as_tensor(quats, dtype=torch.float32)
+    return GaussianModel(
+        torch.as_tensor(means, dtype=torch.float32),
+        q,
+        torch.log(torch.as_tensor(scales, dtype=torch.float32)),
+        torch.zeros(n),
+        torch.rand(n, 1, 3),
+        torch.rand(n, 15, 3),
+    )
+
+
+def test_clamp_keeps_what_the_centre_sees_and_thins_the_depth():
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    n = 64
+    means = rng.normal(size=(n, 3)) * 3
+    quats = Rotation.random(n, random_state=1).as_quat()[:, [3, 0, 1, 2]]
+    m = _model(means, rng.uniform(0.01, 0.5, (n, 3)), quats)
+    cov = script.covariances(m)
+    q, ls = script.from_covariances(cov)  # the round trip the clamp goes through
+    np.testing.assert_allclose(script.covariances(_model(means, np.exp(ls), q)), cov, atol=1e-6)
+    c = script.clamp_along_ray(m)
+    cov2 = script.covariances(c)
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    P = np.eye(3) - np.einsum("ni,nj->nij", u, u)
+    np.testing.assert_allclose(P @ cov2 @ P, P @ cov @ P, atol=1e-6)  # across the ray: unchanged
+    s_min = np.exp(m.log_scales.detach().double().numpy()).min(1)
+    radial = np.einsum("ni,nij,nj->n", u, cov2, u)
+    assert (radial <= s_min**2 * (1 + 1e-4)).all()  # along the ray: no deeper than the thinnest axis
+    was = np.einsum("ni,nij,nj->n", u, cov, u)
+    np.testing.assert_allclose(radial, np.minimum(was, s_min**2), rtol=1e-4)
+
+
+def test_snap_and_floaters_follow_the_true_distance():
+    import numpy as np
+
+    from panorecon.scenes import load_scene
+
+    scene = load_scene("bedroom", 128)
+    rng = np.random.default_rng(2)
+    u = rng.normal(size=(50, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    scale = 2.0  # the cloud is the truth / 2
+    truth = script._true_distance(scene, u, scale)
+    assert np.isfinite(truth).all()  # a room: every ray meets a wall
+    r = truth * rng.choice([0.5, 0.9, 1.0, 1.2], size=50)
+    m = _model(u * r[:, None], np.full((50, 3), 0.02))
+    snapped = script.snap_to_surface(m, scene, scale)
+    got = snapped.means.detach().double().numpy()
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), truth, rtol=1e-5)
+    np.testing.assert_allclose(got / np.linalg.norm(got, axis=1, keepdims=True), u, atol=1e-6)
+    np.testing.assert_allclose(np.exp(snapped.log_scales.detach().double().numpy())[:, 0], 0.02 * truth / r, rtol=1e-5)
+    half = script.snap_to_surface(m, scene, scale, keep=0.5).means.detach().double().numpy()
+    np.testing.assert_allclose(np.linalg.norm(half, axis=1), (truth + r) / 2, rtol=1e-5)
+    kept = script.remove_floaters(m, scene, scale)
+    assert (
+        len(kept) == int((r >= (1 - script.FLOATER_REL) * truth).sum()) == int((r / truth > 0.99).sum())
+    )  # 0.5, 0.9 gone

@@ -14,8 +14,8 @@ from panorecon.io import write_image
 from panorecon.metrics.aligned import apply_color_affine, fit_color_affine, masked_psnr
 from panorecon.scenes import load_scene
 from panorecon.scenes.datasets import heldout_panoramas
+from panorecon.splat.evaluate import _aligned_scores
 from panorecon.splat.labels import make_panorama_heldout_views
-from panorecon.splat.trainer import _aligned_scores
 
 OFFSET = np.array([0.5, 0.3, 0.0])  # metres: the second panorama's centre
 GAIN = np.array([0.7, 0.85, 0.6])  # the second capture's exposure and white balance: rgb -> GAIN rgb + BIAS

@@ -83,6 +83,10 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     for key in ("aligned_psnr", "oracle_psnr", "oracle_aligned_psnr"):
         assert isinstance(held[key], float) and held[f"{key}_views"] == held["views"] and key in held["meaning"]
     assert held["oracle_psnr"] <= held["oracle_aligned_psnr"]
+    # the gaps to the oracle, on the same pixels as the raw (and the aligned) score
+    assert held["covisible_psnr"] == pytest.approx(held["psnr"], abs=1e-3)  # float64 sums against float32
+    assert held["oracle_gap"] == pytest.approx(held["oracle_psnr"] - held["covisible_psnr"])
+    assert held["oracle_aligned_gap"] == pytest.approx(held["oracle_aligned_psnr"] - held["aligned_psnr"])
     # 32 px views: 22 x 22 SSIM windows at most, n/a below 256 of them wholly co-visible
     assert isinstance(held["aligned_ssim"], float) or "SSIM windows" in held["aligned_ssim"]
     # LPIPS only over the views whose every pixel is co-visible (n/a when none is)
@@ -104,6 +108,8 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     rec = result_row(row, pts, {"metrics": m, "seconds": 1.0, "peak_rss_mb": 1.0}, {"versions": {}}, False, False)
     assert rec["psnr_ho"] == held["psnr"] and rec["heldout_aligned_psnr"] == held["aligned_psnr"]
     assert rec["heldout_oracle_psnr"] == held["oracle_psnr"]
+    for key in ("covisible_psnr", "oracle_gap", "covisible_fraction", "oracle_aligned_gap"):
+        assert rec[f"heldout_{key}"] == held[key]
     for key in ("aligned_ssim", "aligned_lpips"):  # a number, or NaN with the reason in its note column
         if isinstance(held[key], float):
             assert rec[f"heldout_{key}"] == held[key]
@@ -112,6 +118,7 @@ def test_training_scores_held_out_panoramas(space, tmp_path):
     table = markdown_table(average_table(pd.DataFrame([rec])), "label")
     assert "held-out PSNR, colour-aligned" in table and "oracle PSNR (ceiling)" in table
     assert f"{held['aligned_psnr']:.2f}" in table and f"{held['oracle_psnr']:.2f}" in table
+    assert "gap to oracle (dB)" in table and f"{held['oracle_gap']:.2f}" in table
 
 
 def test_min_covisible_pixels_is_the_line():
@@ -158,4 +165,5 @@ def test_no_covisible_pixel_reads_na_everywhere(tmp_path):
     rec = result_row(row, pts, {"metrics": m, "seconds": 1.0, "peak_rss_mb": 1.0}, {"versions": {}}, False, False)
     assert np.isnan(rec["psnr_ho"]) and rec["psnr_ho_note"] == na and rec["history_heldout"] is None
     assert np.isnan(rec["heldout_aligned_psnr"]) and rec["heldout_aligned_psnr_note"] == na
-    assert np.isnan(rec["heldout_oracle_psnr"]) and rec["heldout_oracle_psnr_note"] == na
+    for key in ("oracle_psnr", "covisible_psnr", "oracle_gap", "oracle_aligned_gap"):
+        assert np.isnan(rec[f"heldout_{key}"]) and rec[f"heldout_{key}_note"] == na

@@ -11,6 +11,7 @@ from panorecon.io import PanoreconInputError
 from panorecon.metrics.lpips import lpips_or_reason
 from panorecon.scenes import load_scene
 from panorecon.sources import run_source
+from panorecon.splat import evaluate as evaluate_mod
 from panorecon.splat import trainer as trainer_mod
 from panorecon.splat.model import GaussianModel
 from panorecon.splat.ply import load_ply
@@ -44,6 +45,12 @@ def test_training_improves_and_writes_outputs(setup, tmp_path):
     assert after["pseudo-label"]["psnr"] > before["pseudo-label"]["psnr"] + 2
     assert isinstance(after["held-out"]["psnr"], float)
     m = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    # beside the all-pixel headline: the co-visible pixels' PSNR, the reprojection oracle's and the gap, explained
+    held = m["held-out"]
+    assert held["oracle_gap"] == pytest.approx(held["oracle_psnr"] - held["covisible_psnr"])
+    assert 0 < held["covisible_fraction"] < 1 and held["oracle_gap_views"] >= 1
+    assert set(held["meaning"]) >= {"psnr", "covisible_psnr", "oracle_psnr", "oracle_gap", "covisible_fraction"}
+    assert "meaning" not in m["pseudo-label"] and "oracle_gap" not in m["pseudo-label"]
     net = lpips_or_reason()  # a number where setup.sh converted the weights, else the reason, never a stand-in
     if isinstance(net, str):
         assert after["pseudo-label"]["lpips"] == net == m["pseudo-label"]["lpips"]
@@ -429,13 +436,13 @@ def test_coarse_steps_render_at_half_resolution_then_full(setup, tmp_path, monke
     the history's held-out samples are always at full resolution. Fractions outside [0, 1] are refused."""
     scene, pc, depth_fn = setup
     sizes = []
-    real = trainer_mod.rasterize
+    real = evaluate_mod.rasterize  # the trainer's _render (splat/evaluate.py) calls it
 
     def spy(*a, **k):
         sizes.append((a[7], torch.is_grad_enabled()))
         return real(*a, **k)
 
-    monkeypatch.setattr(trainer_mod, "rasterize", spy)
+    monkeypatch.setattr(evaluate_mod, "rasterize", spy)
     monkeypatch.setattr(trainer_mod, "COARSE_MIN_SIZE", 16)  # tiny labels stand for 256 px ones here
     m = train(scene, pc, cfg(iters=6, coarse_until=0.7, history_every=3), tmp_path / "c", depth_fn, progress=False)
     steps = [w for w, grad in sizes if grad]  # the training steps (the evaluation renders run without grad)
