@@ -21,7 +21,11 @@ scene pruned to nothing. So when the label views span no baseline the export add
 (``scale_anchors``): views on the vertical axis at about the cloud's extent (its 90th-percentile distance, the
 extent panorecon's own trainer scales its learning rate by), looking away from the cloud with no point in view,
 with black images. They see no point, so they give no Gaussian a gradient, but their baseline makes every consumer's
-scene size the cloud's extent. ``export.json`` and ``README.txt`` give each consumer's scale and its command.
+scene size the cloud's extent. They stand on a vertical line slightly off the centre, at heights that may differ, so
+that the cameras' mean (OpenSplat's and nerfstudio's origin) is ``OFF_CENTRE`` x extent from the label centre, away
+from every label view's plane: OpenSplat's CPU projection divides by each Gaussian's depth in every view, and at
+the label centre float32 cancellation gives exactly 0 (NaN gradients) for Gaussians training moves across a plane.
+``export.json`` and ``README.txt`` give each consumer's scale and its command.
 
 Everything is written into a temporary folder beside ``out_dir`` and renamed into place at the end.
 """
@@ -359,9 +363,9 @@ def _readme(report: dict) -> str:
             "Scale anchors: " + ", ".join(report["anchors"]),
             "  Every consumer below sizes the scene by its cameras' spread; the label views share one centre",
             "  (their colours are only true there), so a spread of 0 would break them all. The two anchors sit on",
-            "  the vertical axis at about the cloud's extent, looking away from it with no point in view: their",
-            "  true image is empty (black), they give no Gaussian a gradient, and their baseline makes each",
-            "  consumer's scene size the cloud's extent. Leave them in; drop them only with views of your own",
+            "  a vertical line near the centre at about the cloud's extent, looking away from it with no point in",
+            "  view: their true image is empty (black), they give no Gaussian a gradient, and their baseline makes",
+            "  each consumer's scene size the cloud's extent. Leave them in; drop them only with views of your own",
             "  that span a baseline.",
             "",
         ]
