@@ -21,7 +21,11 @@ scene pruned to nothing. So when the label views span no baseline the export add
 (``scale_anchors``): views on the vertical axis at about the cloud's extent (its 90th-percentile distance, the
 extent panorecon's own trainer scales its learning rate by), looking away from the cloud with no point in view,
 with black images. They see no point, so they give no Gaussian a gradient, but their baseline makes every consumer's
-scene size the cloud's extent. ``export.json`` and ``README.txt`` give each consumer's scale and its command.
+scene size the cloud's extent. They stand on a vertical line slightly off the centre, at heights that may differ, so
+that the cameras' mean (OpenSplat's and nerfstudio's origin) is ``OFF_CENTRE`` x extent from the label centre, away
+from every label view's plane: OpenSplat's CPU projection divides by each Gaussian's depth in every view, and at
+the label centre float32 cancellation gives exactly 0 (NaN gradients) for Gaussians training moves across a plane.
+``export.json`` and ``README.txt`` give each consumer's scale and its command.
 
 Everything is written into a temporary folder beside ``out_dir`` and renamed into place at the end.
 """
@@ -38,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import PinholeCamera, PointCloud, centred_camera
+from .geometry import PinholeCamera, PointCloud, centred_camera, fibonacci_directions
 from .io import PanoreconInputError, write_image, write_json
 
 log = logging.getLogger(__name__)
@@ -49,6 +53,9 @@ OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])  # camera axes (x right, y do
 EXTENT_PERCENTILE = 90.0  # the cloud's extent: this percentile of its points' distances from the label centre
 ANCHOR_MARGIN = 0.05  # anchors sit this fraction of the extent beyond the height where they would see a point
 NO_BASELINE = 1e-3  # label views spread by less than this fraction of the extent span "no baseline"
+OFF_CENTRE = 1e-3  # the label centre's distance from the mean of all camera centres, as a fraction of the extent
+OFF_CENTRE_CANDIDATES = 1001  # Fibonacci directions searched for the label centre's offset (off_centre_direction)
+OFF_CENTRE_MIN_DEPTH = 1e-6  # refuse a layout where a label view's depth of that mean is below this x extent
 
 
 def c2w_opengl(viewmat: np.ndarray) -> np.ndarray:
@@ -72,20 +79,39 @@ def cloud_extent(cloud: PointCloud, centre: np.ndarray) -> float:
     return extent
 
 
-def scale_anchors(cloud: PointCloud, centre: np.ndarray, extent: float, size: int, fov_deg: float):
-    """Two views at ``centre`` + (0, 0, +a) looking up and ``centre`` - (0, 0, b) looking down, a and b the
-    ``extent`` or, where the cloud reaches into that view, the lowest height at which no point lies inside the cone
-    around the square view (half-angle atan(sqrt 2 tan(fov / 2))) plus ``ANCHOR_MARGIN`` x extent: their true
-    image is empty -> ([PinholeCamera] x 2, ["anchor_up", "anchor_down"])."""
-    p = cloud.xyz.astype(np.float64) - centre
+def off_centre_direction(axes: np.ndarray) -> tuple[np.ndarray, float]:
+    """The unit direction u [3] (float64), among ``OFF_CENTRE_CANDIDATES`` Fibonacci directions, farthest from
+    every plane through the centre perpendicular to a view axis in ``axes`` [N, 3] (unit) -> (u, min |axes u|)."""
+    cands = fibonacci_directions(OFF_CENTRE_CANDIDATES)
+    score = np.abs(cands @ np.asarray(axes, np.float64).T).min(1)
+    best = int(np.argmax(score))
+    return cands[best], float(score[best])
+
+
+def scale_anchors(
+    cloud: PointCloud, centre: np.ndarray, extent: float, size: int, fov_deg: float, mean_shift=(0.0, 0.0, 0.0)
+):
+    """Two views on the vertical line through ``centre`` + s, one at height a looking up and one at -b looking
+    down: a and b at least the ``extent`` or, where the cloud reaches into that view, the lowest height at which
+    no point lies inside the cone around the square view (half-angle atan(sqrt 2 tan(fov / 2))) plus
+    ``ANCHOR_MARGIN`` x extent, so their true image is empty. s (horizontal) and a - b are set so that the two
+    anchors' centres sum to 2 ``centre`` + ``mean_shift`` [3] (metres; the default keeps them on the vertical
+    axis through ``centre`` at the same height) -> ([PinholeCamera] x 2, ["anchor_up", "anchor_down"])."""
+    shift = np.asarray(mean_shift, np.float64)
+    line = centre + [shift[0] / 2, shift[1] / 2, 0.0]
+    p = cloud.xyz.astype(np.float64) - line
     cone = math.tan(math.radians(fov_deg) / 2) * math.sqrt(2)  # a point is seen only if r < (height above - a) cone
     r = np.hypot(p[:, 0], p[:, 1])
     margin = ANCHOR_MARGIN * extent
     up = max(extent, float((p[:, 2] - r / cone).max()) + margin)
     down = max(extent, float((-p[:, 2] - r / cone).max()) + margin)
+    if up - down >= shift[2]:  # raise one of them (never lower) until a - b = the vertical shift
+        down = up - shift[2]
+    else:
+        up = down + shift[2]
     cams = [
-        centred_camera(np.array([0.0, 0.0, 1.0]), size, fov_deg, centre + [0.0, 0.0, up]),
-        centred_camera(np.array([0.0, 0.0, -1.0]), size, fov_deg, centre - [0.0, 0.0, down]),
+        centred_camera(np.array([0.0, 0.0, 1.0]), size, fov_deg, line + [0.0, 0.0, up]),
+        centred_camera(np.array([0.0, 0.0, -1.0]), size, fov_deg, line - [0.0, 0.0, down]),
     ]
     return cams, ["anchor_up", "anchor_down"]
 
@@ -124,6 +150,16 @@ def consumer_scales(c2w: np.ndarray) -> dict[str, float]:
         "gsplat-normalized": float(normalized),
         "3dgs": float(1.1 * spread),
     }
+
+
+def label_centre_depth(c2w: np.ndarray, n_labels: int) -> float:
+    """min over the first ``n_labels`` views of |depth of the mean camera centre| (metres, float64) for
+    camera-to-world ``c2w`` [N, 4, 4] (OpenCV axes): how far the point OpenSplat and nerfstudio centre the world on
+    lies from the plane through each label camera perpendicular to its axis (0 when it is the label centre)."""
+    c2w = np.asarray(c2w, np.float64)
+    mean = c2w[:, :3, 3].mean(0)
+    labels = c2w[:n_labels]
+    return float(np.abs(np.einsum("nk,nk->n", labels[:, :3, 2], mean - labels[:, :3, 3])).min())
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -236,7 +272,11 @@ def export_scene(
     baseline = float(np.linalg.norm(centres - centre, axis=1).max())
     anchors, warnings = [], []
     if baseline < NO_BASELINE * extent:
-        anchor_cams, anchor_names = scale_anchors(cloud, centre, extent, view_size, fov_deg)
+        # OpenSplat and nerfstudio centre the world on the cameras' mean; the anchors keep the label centre off it
+        u, _ = off_centre_direction(np.stack([c.forward for c in cameras]))
+        offset = OFF_CENTRE * extent * u  # label centre - mean of all camera centres
+        n_all = len(cameras) + 2
+        anchor_cams, anchor_names = scale_anchors(cloud, centre, extent, view_size, fov_deg, mean_shift=-n_all * offset)
         anchors = [f"images/{n}.{image_format}" for n in anchor_names]
         cameras, names = cameras + anchor_cams, names + anchors
         images += [np.zeros((view_size, view_size, 3), np.uint8)] * len(anchor_cams)
@@ -250,6 +290,12 @@ def export_scene(
             "now about the cloud's extent (README.txt)"
         )
     c2w = np.stack([np.linalg.inv(c.viewmat) for c in cameras])
+    depth = label_centre_depth(c2w, len(labels))
+    if anchors and not depth >= OFF_CENTRE_MIN_DEPTH * extent:  # guards off_centre_direction's choice
+        raise PanoreconInputError(
+            f"export: the label views' centre lies {depth:.3g} from a view plane through the cameras' mean "
+            f"(expected at least {OFF_CENTRE_MIN_DEPTH:g} x the extent {extent:.3f}; too many label views?)"
+        )
     scales = consumer_scales(c2w)
     commands = consumer_commands(out.resolve(), fmt)
     bad = [k for k in commands if not (np.isfinite(scales[k]) and scales[k] > 0)]
@@ -267,6 +313,7 @@ def export_scene(
         "cloud_extent": extent,
         "extent_rule": f"{EXTENT_PERCENTILE:g}th percentile of the points' distances from the label centre",
         "anchors": {n: c.position for n, c in zip(anchors, cameras[len(labels) :])},
+        "label_centre_depth": depth,
         "consumer_scales": {k: scales[k] for k in ("opensplat", "nerfstudio", "gsplat", "3dgs") if k in commands},
         "commands": commands,
         "warnings": warnings,
@@ -316,9 +363,9 @@ def _readme(report: dict) -> str:
             "Scale anchors: " + ", ".join(report["anchors"]),
             "  Every consumer below sizes the scene by its cameras' spread; the label views share one centre",
             "  (their colours are only true there), so a spread of 0 would break them all. The two anchors sit on",
-            "  the vertical axis at about the cloud's extent, looking away from it with no point in view: their",
-            "  true image is empty (black), they give no Gaussian a gradient, and their baseline makes each",
-            "  consumer's scene size the cloud's extent. Leave them in; drop them only with views of your own",
+            "  a vertical line near the centre at about the cloud's extent, looking away from it with no point in",
+            "  view: their true image is empty (black), they give no Gaussian a gradient, and their baseline makes",
+            "  each consumer's scene size the cloud's extent. Leave them in; drop them only with views of your own",
             "  that span a baseline.",
             "",
         ]

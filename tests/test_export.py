@@ -233,23 +233,22 @@ def test_anchors_see_no_point_and_are_black(scene, cloud, tmp_path, lift):
     K = np.array([[meta["fl_x"], 0, meta["cx"]], [0, meta["fl_y"], meta["cy"]], [0, 0, 1]])
     anchors = [f for f in meta["frames"] if "anchor" in f["file_path"]]
     assert len(anchors) == 2
+    extent = json.loads((out / "export.json").read_text())["cloud_extent"]
+    lowest = []  # per anchor: True when it sits as low as it can (the extent, or a point enters its view lower)
     for f in anchors:
         w2c = viewmat_from_c2w_opengl(np.array(f["transform_matrix"]))
         assert not _seen(pc.xyz, w2c, K, SIZE).any()
         assert _seen(pc.xyz, np.diag([1.0, -1.0, -1.0, 1.0]) @ w2c, K, SIZE).any()  # turned round, it sees the cloud
         assert not np.asarray(iio.imread(out / f["file_path"])).any()
         c = np.linalg.inv(w2c)[:3, 3]
-        extent = json.loads((out / "export.json").read_text())["cloud_extent"]
-        if (
-            abs(c[2]) > extent * 1.001
-        ):  # raised above the extent only as far as needed: 10 % lower, a point is in its cone
-            lowered = w2c.copy()
-            lowered[:3, 3] = -w2c[:3, :3] @ (c - np.sign(c[2]) * np.array([0, 0, 0.1 * extent]))
-            wide = K * [[2**-0.5], [2**-0.5], [1]]  # a view whose square holds the cone the rule keeps clear
-            wide[:2, 2] = K[:2, 2]
-            assert _seen(pc.xyz, lowered, wide, SIZE).any()
-        else:
-            assert abs(c[2]) == pytest.approx(extent)
+        lowered = w2c.copy()
+        lowered[:3, 3] = -w2c[:3, :3] @ (c - np.sign(c[2]) * np.array([0, 0, 0.1 * extent]))
+        wide = K * [[2**-0.5], [2**-0.5], [1]]  # a view whose square holds the cone the rule keeps clear
+        wide[:2, 2] = K[:2, 2]
+        lowest.append(abs(c[2]) == pytest.approx(extent) or _seen(pc.xyz, lowered, wide, SIZE).any())
+    # one is as low as it can be; the other may sit higher by the offset that keeps the label centre off the
+    # cameras' mean (test_opensplat_gets_no_nan_gradient_at_a_label_view_plane)
+    assert any(lowest)
     if lift:
         assert (
             max(abs(np.linalg.inv(viewmat_from_c2w_opengl(np.array(f["transform_matrix"])))[2, 3]) for f in anchors)
@@ -269,3 +268,138 @@ def test_ply_is_float32_as_opensplat_reads_it(scene, cloud, tmp_path):
     assert len(raw) - end == len(cloud) * 15
     assert np.isfinite(rec["xyz"]).all() and np.array_equal(rec["xyz"], cloud.xyz)
     assert np.array_equal(rec["rgb"], np.clip(np.round(cloud.rgb * 255), 0, 255).astype(np.uint8))
+
+
+# --- OpenSplat's CPU projection on the export (pierotofy/OpenSplat 1.1.5, git 15b7e80) ----------------------------
+
+
+def opensplat_quat_to_rot(q: torch.Tensor) -> torch.Tensor:
+    """tensor_math.cpp quatToRotMat: (w, x, y, z) [..., 4] float32 -> rotation [..., 3, 3] (normalised first)."""
+    w, x, y, z = torch.nn.functional.normalize(q, dim=-1).unbind(-1)
+    return torch.stack(
+        [
+            torch.stack([1 - 2 * (y**2 + z**2), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            torch.stack([2 * (x * y + w * z), 1 - 2 * (x**2 + z**2), 2 * (y * z - w * x)], -1),
+            torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x**2 + y**2)], -1),
+        ],
+        -2,
+    )
+
+
+def opensplat_input(out, fmt) -> tuple[list[str], torch.Tensor, torch.Tensor]:
+    """What OpenSplat trains on, read as it reads the export -> (image names, camera-to-world [N, 4, 4] in OpenGL
+    axes after its normalisation, cloud [P, 3]), float32 throughout as there:
+
+    * nerfstudio.cpp ``inputDataFromNerfStudio``: frames sorted by file_path, transform_matrix as float;
+      sparse_pc.ply through point_io.cpp ``fastPlyReadPointSet`` (3 floats per vertex, then 3 bytes).
+    * colmap.cpp ``inputDataFromColmap``: images.bin in file order, R = quatToRotMat(qvec), c2w = (R^T, -R^T t),
+      columns 1 and 2 negated (OpenCV -> OpenGL); points3D.bin's doubles cast to float.
+    * both: tensor_math.cpp ``autoScaleAndCenterPoses`` (origins minus their mean, times 1 / max |origin|), and the
+      points moved by the same translation and scale."""
+    if fmt == "nerfstudio":
+        meta = json.loads((out / "transforms.json").read_text())
+        frames = sorted(meta["frames"], key=lambda f: f["file_path"])
+        names = [f["file_path"] for f in frames]
+        poses = torch.tensor(np.array([f["transform_matrix"] for f in frames], np.float32))
+        raw = (out / meta["ply_file_path"]).read_bytes()
+        end = raw.index(b"end_header\n") + len(b"end_header\n")
+        points = torch.from_numpy(np.frombuffer(raw[end:], dtype=[("xyz", "<f4", 3), ("rgb", "u1", 3)])["xyz"].copy())
+    else:
+        rec = pycolmap.Reconstruction(out / "sparse" / "0")
+        ims = [rec.images[k] for k in sorted(rec.images)]  # pycolmap writes images.bin in image_id order
+        names = [im.name for im in ims]
+        q = np.array([im.cam_from_world().rotation.quat for im in ims])[:, [3, 0, 1, 2]]  # xyzw -> images.bin's wxyz
+        R = opensplat_quat_to_rot(torch.tensor(q, dtype=torch.float32))
+        t = torch.tensor(np.array([im.cam_from_world().translation for im in ims]), dtype=torch.float32)
+        poses = torch.zeros(len(ims), 4, 4)
+        poses[:, :3, :3] = R.transpose(1, 2)
+        poses[:, :3, 3] = -(R.transpose(1, 2) @ t[..., None])[..., 0]
+        poses[:, 3, 3] = 1
+        poses[:, :3, 1:3] *= -1
+        points = torch.tensor(np.array([p.xyz for p in rec.points3D.values()]), dtype=torch.float32)
+    origins = poses[:, :3, 3].clone()
+    centre = origins.mean(0)
+    origins -= centre
+    f = 1.0 / torch.max(torch.abs(origins))
+    poses[:, :3, 3] = origins * f
+    return names, poses, (points - centre) * f
+
+
+def opensplat_initial_scales(points: torch.Tensor) -> torch.Tensor:
+    """kdtree_tensor.cpp ``PointsTensor::scales`` (model.hpp takes its log): the mean distance from each point to
+    its 3 nearest others [P] float32."""
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(points.numpy()).query(points.numpy(), k=4)
+    return torch.tensor(d[:, 1:].mean(1), dtype=torch.float32)
+
+
+def opensplat_project(c2w, means, scales, quats, fx, fy, width, height) -> tuple[torch.Tensor, torch.Tensor]:
+    """One view's projection as OpenSplat runs it on the CPU -> (camera-frame means [P, 3], conics [P, 3]).
+
+    model.cpp ``Model::forward``: R = c2w[:3, :3] diag(1, -1, -1), view matrix (R^T, -R^T t); then
+    rasterizer/gsplat-cpu/gsplat_cpu.cpp ``project_gaussians_forward_tensor_cpu``, which projects *every* Gaussian
+    (no near-plane cut): pView = R^T mean + T, rz = 1 / pView.z, the EWA Jacobian, cov2d + 0.3 blur, conic."""
+    R = c2w[:3, :3] @ torch.diag(torch.tensor([1.0, -1.0, -1.0]))
+    Rclip = R.T
+    Tclip = (-Rclip @ c2w[:3, 3:4])[:, 0]
+    pView = torch.matmul(Rclip, means[..., None])[..., 0] + Tclip
+    M = opensplat_quat_to_rot(quats) * scales[..., None, :]
+    cov3d = M @ M.transpose(-1, -2)
+    lim_x, lim_y = 1.3 * 0.5 * width / fx, 1.3 * 0.5 * height / fy
+    z = pView[:, 2]
+    tx = z * torch.clamp(pView[:, 0] / z, -lim_x, lim_x)
+    ty = z * torch.clamp(pView[:, 1] / z, -lim_y, lim_y)
+    rz = 1.0 / z
+    rz2 = rz.pow(2)
+    zero = torch.zeros_like(rz)
+    J = torch.stack(
+        [torch.stack([fx * rz, zero, -fx * tx * rz2], -1), torch.stack([zero, fy * rz, -fy * ty * rz2], -1)], -2
+    )
+    T = J @ Rclip
+    cov2d = T @ cov3d @ T.transpose(-1, -2)
+    a, b, c = cov2d[:, 0, 0] + 0.3, cov2d[:, 0, 1], cov2d[:, 1, 1] + 0.3
+    det = torch.clamp_min(a * c - b**2, 1e-6)
+    return pView, torch.stack([c / det, -b / det, a / det], -1)
+
+
+@pytest.mark.parametrize("fmt", ["colmap", "nerfstudio"])
+def test_opensplat_gets_no_nan_gradient_at_a_label_view_plane(scene, cloud, tmp_path, fmt):
+    """OpenSplat's CPU projection (``opensplat_project``) divides by every Gaussian's depth in the view: one whose
+    float32 depth is exactly 0 gets an infinite Jacobian, a NaN conic and, through autograd even with no pixel
+    touched, NaN gradients for its mean, scale and rotation, which Adam keeps for good (bedroom, 300 steps: 1-4 of
+    524,278 Gaussians in the nerfstudio format). Training moves Gaussians across the planes through the label
+    centre perpendicular to each view axis; replayed here with Gaussians jittered within 1e-6 of each label view's
+    plane. With the label centre on OpenSplat's origin (symmetric anchors: the cameras' mean) float32 cancellation
+    gives exactly 0 for about 0.5 % of them (130 of 24,000 here, nerfstudio); the anchors keep it off that origin.
+    (A true depth below ~1e-9 still overflows its conic, 0.05-0.08 % of these samples either way: the consumer's.)"""
+    out = export_scene(scene, cloud, VIEWS, fmt, tmp_path / fmt, view_size=SIZE)
+    names, poses, points = opensplat_input(out, fmt)
+    assert len(points) == len(cloud) and torch.isfinite(poses).all() and torch.isfinite(points).all()
+    scales = opensplat_initial_scales(points)
+    assert (scales > 0).all()  # model.hpp takes the log: no duplicate points
+    label = [i for i, n in enumerate(names) if "view_" in n]
+    rng = np.random.default_rng(0)
+    fx = SIZE / 2 / np.tan(np.radians(60.0) / 2)
+    zeros = total = 0
+    for i in label:
+        axis = -poses[i, :3, 2].double()  # OpenGL camera looks along -z
+        centre = poses[i, :3, 3].double()
+        pick = rng.choice(len(points), 2000)
+        p = points[pick].double()
+        on_plane = p - ((p - centre) @ axis)[:, None] * axis
+        jitter = torch.tensor(rng.uniform(-1e-6, 1e-6, (len(p), 1)))
+        means = (on_plane + jitter * axis).float().requires_grad_()
+        s = scales[pick, None].repeat(1, 3).requires_grad_()
+        q = torch.tensor(rng.normal(size=(len(p), 4)), dtype=torch.float32).requires_grad_()
+        p_view, conic = opensplat_project(poses[i], means, s, q, fx, fx, SIZE, SIZE)
+        (conic * 0).sum().backward()  # off-image Gaussians: zero upstream gradient, as from the rasterizer
+        finite = torch.isfinite(torch.cat([means.grad, s.grad, q.grad], 1)).all(1)
+        at_zero = p_view[:, 2] == 0
+        assert not finite[at_zero].any()  # each Gaussian at depth exactly 0 gets a NaN gradient
+        zeros += int(at_zero.sum())
+        total += len(p)
+    assert zeros == 0, f"{zeros} of {total} Gaussians near a label view's plane at depth 0: NaN gradients"
+    # why: OpenSplat's origin (the cameras' mean) lies off every label view's plane
+    depth_of_origin = torch.stack([(-poses[i, :3, :3].T @ poses[i, :3, 3])[2] for i in label]).abs()
+    assert depth_of_origin.min() > 1e-6

@@ -1,7 +1,8 @@
 """OpenSplat (pierotofy/OpenSplat, a CPU build) beside panorecon's trainer on the same ``panorecon export``: same
 pseudo-label images, same initial cloud, same step count; both scored by panorecon's own evaluation on the label
 cameras and the held-out cameras. Prints JSON (machine, versions, commits, load averages, per format: seconds per
-step, PSNR/SSIM/LPIPS, Gaussians, and the ratio of OpenSplat's seconds per step to panorecon's).
+step, PSNR/SSIM/LPIPS, Gaussians, and the ratio of OpenSplat's seconds per step to panorecon's). A run that fails
+(non-zero exit, no PLY, any non-finite mean) is "status": "failed: ..." with the count, and the script exits 1.
 
     python eval/peers/opensplat.py --opensplat /path/to/opensplat OUT [--scene bedroom] [--iters 300]
     python eval/peers/opensplat.py --opensplat build/opensplat out/beach --scene beach --formats colmap nerfstudio
@@ -23,6 +24,7 @@ import math
 import shlex
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -99,6 +101,16 @@ def score_ply(ply: Path, labels, heldout, res: int, fov_deg: float, background) 
     }
 
 
+def run_status(run: dict) -> str:
+    """ "ok", or "failed: ..." for a run that exited non-zero, wrote no PLY or left any non-finite mean: such a
+    run is no comparison, whatever its other Gaussians score."""
+    if "error" in run:
+        return "failed: " + run["error"].removeprefix("n/a: ")
+    if run["non_finite_means"]:
+        return f"failed: {run['non_finite_means']} of {run['gaussians']} Gaussians have non-finite means"
+    return "ok"
+
+
 def main(argv=None) -> dict:
     import torch
 
@@ -164,7 +176,10 @@ def main(argv=None) -> dict:
             run |= score_ply(ply, labels, heldout, args.res, args.fov, OPENSPLAT_BACKGROUND)
         else:
             run["error"] = f"n/a: OpenSplat exited {run['returncode']} (log: {out / f'opensplat_{fmt}.log'})"
+        run["status"] = run_status(run)
         result["opensplat_runs"][fmt] = run
+    failed = {fmt: run["status"] for fmt, run in result["opensplat_runs"].items() if run["status"] != "ok"}
+    result["status"] = "ok" if not failed else "failed: " + "; ".join(f"{k}: {v}" for k, v in failed.items())
 
     cfg = TrainConfig(
         iters=args.iters,
@@ -200,5 +215,10 @@ def main(argv=None) -> dict:
     return emit(result, str(out / "result.json"))
 
 
+def exit_status(result: dict) -> int:
+    """The command's exit status: 0 when every OpenSplat run is "ok", 1 when any failed."""
+    return 0 if result["status"] == "ok" else 1
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(exit_status(main()))

@@ -77,7 +77,8 @@ def test_fake_opensplat_on_both_formats_is_scored_beside_panorecon(tmp_path):
         assert run["returncode"] == 0 and run["steps_seen"] == 3 and 0.005 < run["seconds_per_step"] < 5
         assert run["gaussians"] == 2000 and run["non_finite_means"] == 0 and run["export_scale"] > 0
         assert isinstance(run["pseudo-label"]["psnr"], float) and isinstance(run["held-out"]["psnr"], float)
-        assert run["seconds_per_step_vs_panorecon"] > 0
+        assert run["seconds_per_step_vs_panorecon"] > 0 and run["status"] == "ok"
+    assert res["status"] == "ok"
     pan = res["panorecon"]
     assert pan["gaussians"] > 0 and isinstance(pan["held-out"]["psnr"], float) and pan["seconds_per_step"] > 0
     assert json.loads((tmp_path / "out" / "result.json").read_text())["scene"] == "bedroom"
@@ -92,8 +93,28 @@ def test_nan_or_failed_runs_are_reported_not_scored(tmp_path, mode):
     run = res["opensplat_runs"]["colmap"]
     if mode == "nan":
         assert run["non_finite_means"] == 1 and run["pseudo-label"].startswith("n/a: 1 non-finite")
+        assert run["status"] == "failed: 1 of 2000 Gaussians have non-finite means"
     else:
         assert run["returncode"] == 3 and run["error"].startswith("n/a: OpenSplat exited 3") and "gaussians" not in run
+        assert run["status"].startswith("failed: OpenSplat exited 3")
+    assert res["status"] == "failed: colmap: " + run["status"].removeprefix("failed: ")
+
+
+@pytest.mark.parametrize(
+    "run, status",
+    [
+        ({"gaussians": 9, "non_finite_means": 0}, "ok"),
+        ({"gaussians": 9, "non_finite_means": 4}, "failed: 4 of 9 Gaussians have non-finite means"),
+        ({"error": "n/a: OpenSplat exited 3 (log: x)"}, "failed: OpenSplat exited 3 (log: x)"),
+    ],
+)
+def test_any_non_finite_mean_fails_the_run(run, status):
+    assert script.run_status(run) == status
+
+
+def test_the_script_exits_1_when_a_run_failed():
+    assert script.exit_status({"status": "ok"}) == 0
+    assert script.exit_status({"status": "failed: colmap: 4 of 9 Gaussians have non-finite means"}) == 1
 
 
 def test_a_missing_binary_is_one_error(tmp_path, capsys):
