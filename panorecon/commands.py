@@ -321,7 +321,7 @@ def ablate(cfg: K.AblateConfig) -> int:
     if cfg.root is not None and not Path(cfg.root).is_dir():
         raise PanoreconInputError(f"--root {cfg.root}: no such folder (expected a dataset root)")
     overrides = dict(parse_override(t) for t in cfg.set)
-    suites = [load_suite(s, cfg.root, overrides, cfg.scene_dir) for s in cfg.suite]
+    suites = [load_suite(s, cfg.root, overrides, cfg.scene_dir, cfg.max_runs) for s in cfg.suite]
     stems = [s.name for s in suites]
     if len(set(stems)) != len(stems):
         raise PanoreconInputError(f"ablate: suites {', '.join(cfg.suite)} share a file name; rename one")
