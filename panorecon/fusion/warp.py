@@ -64,6 +64,8 @@ def warp_to_erp(
     sampling: str = "nearest",
     supersample: int = 1,
     edge_log: float = 0.1,
+    edge_jump: float | None = None,
+    edge_px: int = 1,
 ) -> ErpObservation:
     """Backward warp of a view's ray distance onto the ERP grid. ``directions`` [H*W, 3] may be passed to
     share the ERP rays between views; ``distance`` [h, w] overrides ``view.to_distance()`` (e.g. after affine
@@ -87,9 +89,11 @@ def warp_to_erp(
     d = dist[rows, cols]
     ok = np.isfinite(d) & (d > 0)
     border = region_border(np.isfinite(dist) & (dist > 0), border_px)[rows, cols]
-    index, rows, cols, cos, border, x, y = index[ok], rows[ok], cols[ok], cos[ok], border[ok], x[ok], y[ok]
     with np.errstate(divide="ignore", invalid="ignore"):
         log_view = np.log(np.where(dist > 0, dist, np.nan).astype(np.float64))
+    if edge_jump is not None:
+        ok &= ~depth_edge_pixels(log_view, edge_jump, edge_px)[rows, cols]
+    index, rows, cols, cos, border, x, y = index[ok], rows[ok], cols[ok], cos[ok], border[ok], x[ok], y[ok]
     if sampling == "nearest":
         value = log_view[rows, cols]
     else:
@@ -103,6 +107,34 @@ def warp_to_erp(
         keep = np.isfinite(value)  # every sub-ray fell outside the view: the centre ray alone is not enough
         index, value, cos, border = index[keep], value[keep], cos[keep], border[keep]
     return ErpObservation(index + r0 * width, value, cos**2, border)
+
+
+def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1) -> np.ndarray:
+    """[h, w] bool: the valid view pixels at a depth edge, dilated to ``px`` pixels (Chebyshev).
+
+    A pixel p is at an edge when, along a row, a column or a diagonal (neighbours p - d, p + d), its log distance
+    departs from the straight line through its neighbours by more than ``jump``: |l(p+d) - 2 l(p) + l(p-d)| >
+    ``jump``; with one neighbour missing (the image border, an invalid pixel), when it differs from the other by
+    more than ``jump``; or when it differs from a neighbour by more than 2 ``jump`` (a slope on which a read half a
+    pixel off is more than ``jump`` off). So both pixels of a jump are flagged, and a smooth (log-linear) depth
+    less steep than that is not: sampling and blending a straight line is exact, across a step it gives a value
+    on neither side."""
+    h, w = log_view.shape
+    pad = np.full((h + 2, w + 2), np.nan)
+    pad[1:-1, 1:-1] = log_view
+    edge = np.zeros((h, w), bool)
+    with np.errstate(invalid="ignore"):
+        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            after = pad[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            before = pad[1 - dr : 1 - dr + h, 1 - dc : 1 - dc + w]
+            bend = np.abs(after - 2 * log_view + before) > jump  # False where a neighbour is missing
+            one_side = np.isnan(after) ^ np.isnan(before)
+            step = np.abs(np.where(np.isnan(after), before, after) - log_view) > jump
+            steep = np.fmax(np.abs(after - log_view), np.abs(log_view - before)) > 2 * jump
+            edge |= bend | (one_side & step) | steep
+    if px > 1:
+        edge = cv2.dilate(edge.astype(np.uint8), np.ones((2 * px - 1, 2 * px - 1), np.uint8)).astype(bool)
+    return edge & np.isfinite(log_view)
 
 
 def supersample_rays(pixels: np.ndarray, height: int, width: int, k: int, sub: int | None = None) -> np.ndarray:

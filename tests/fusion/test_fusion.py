@@ -133,10 +133,12 @@ class TestNumericalStability:
     @pytest.mark.parametrize("fov", [1.0, 179.0])
     def test_extreme_fields_of_view(self, fov):
         layout = make_layout("fibonacci", 20, fov_deg=fov)
-        r = fuse_views(make_views(layout, 32, np.random.default_rng(10)), 32, 64)
+        views = make_views(layout, 32, np.random.default_rng(10))
+        r = fuse_views(views, 32, 64)
         assert r.seen.any() and np.isfinite(r.distance[r.seen]).all()
-        if fov > 170:
-            assert r.seen.all()
+        if fov > 170:  # every pixel is seen; the default drops some: a 32 px view of 179 degrees has a central
+            # pixel 148 degrees wide, whose neighbours' distances bend by more than edge_jump (depth_edge_pixels)
+            assert fuse_views(views, 32, 64, FusionConfig(edge_jump=None)).seen.all()
 
     def test_nan_inf_zero_negative_teacher_values_are_ignored(self, fib20, box_truth):
         views = make_views(fib20, 64, np.random.default_rng(11))
@@ -449,3 +451,91 @@ def test_cached_erp_rays_are_erp_directions():
 
     np.testing.assert_allclose(_erp_rays(6), erp_directions(6, 12).reshape(-1, 3), rtol=0, atol=1e-15)
     assert not _erp_rays(6).flags.writeable
+
+
+class TestDepthEdges:
+    """Flying points (more than 50 % off the truth after the median scale, ``metrics.depth.FLYING_REL``) of the
+    Fibonacci fusion with a near-perfect teacher on the stress scenes (``scenes/stress.py``): at most 0.05 %."""
+
+    MOST = 5e-4
+
+    @staticmethod
+    def flying(case: str, width: int = 256, view_size: int | None = None, **fusion):
+        from panorecon.scenes.stress import CASES
+        from panorecon.sources import run_source
+
+        cfg = FusionConfig(**fusion) if fusion else None
+        _, rep = run_source(CASES[case](width), "fibonacci", "sim:clean", fusion_config=cfg, view_size=view_size)
+        return rep
+
+    def held(self, case: str, **kw):
+        rep = self.flying(case, **kw)
+        assert rep["depth"]["flying"] <= self.MOST and rep["points"]["flying"] <= self.MOST, (case, rep["depth"])
+        assert rep["depth"]["abs_rel"] < 0.005
+        assert rep["depth"]["pixels"] >= 0.93 * rep["erp"][0] * rep["erp"][1]  # the edge pixels dropped, no more
+
+    def test_cliff_ratio_10_leaves_no_flying_points(self):
+        self.held("cliff-10")
+
+    def test_cliff_ratio_1e2_leaves_no_flying_points(self):
+        self.held("cliff-1e2")
+
+    def test_cliff_ratio_1e3_leaves_no_flying_points(self):
+        self.held("cliff-1e3")
+
+    def test_cliff_ratio_1e4_leaves_no_flying_points(self):
+        self.held("cliff-1e4")
+
+    def test_cliff_ratio_1e4_through_the_guided_upsampling_leaves_no_flying_points(self):
+        """128 px views resolve 256 rows of a 512-row panorama: the solve's edges reach full size by
+        ``upsample.guided_upsample``, which keeps to one side of them."""
+        rep = self.flying("cliff-1e4", width=1024, view_size=128)
+        assert "upsample" in rep["fusion"]
+        assert rep["depth"]["flying"] <= self.MOST and rep["depth"]["abs_rel"] < 0.01
+
+    def test_ramp_4_decades_over_6_degrees_leaves_no_flying_points(self):
+        self.held("ramp-4")
+
+    def test_ramp_6_decades_over_10_degrees_leaves_no_flying_points(self):
+        self.held("ramp-6")
+
+    def test_horizon_4_decades_leaves_no_flying_points(self):
+        self.held("horizon-4")
+
+    def test_cliff_ratio_1e4_throws_flying_points_without_the_edge_handling(self):
+        """What the edge handling removes: blends and wrong-side pixels at the cliff (the measure sees them)."""
+        rep = self.flying("cliff-1e4", edge_jump=None)
+        assert rep["depth"]["flying"] > 20 * self.MOST and rep["depth"]["abs_rel"] > 1
+
+
+def test_depth_edge_pixels_flag_both_sides_of_a_step_and_no_smooth_slope():
+    from panorecon.fusion.warp import depth_edge_pixels
+
+    jump = math.log(1.5)
+    x = np.arange(20.0)[None].repeat(10, 0)
+    step = np.where(x < 8, 0.0, 1.0)
+    flags = depth_edge_pixels(step, jump)
+    assert flags[:, 7:9].all() and not flags[:, :7].any() and not flags[:, 9:].any()
+    # log-linear, less than 2 jump per pixel: no edge inside the image (at its border a step cannot be told from a
+    # slope: a one-sided difference above jump counts)
+    assert not depth_edge_pixels(0.7 * x, jump)[1:-1, 1:-1].any() and depth_edge_pixels(0.7 * x, jump)[:, 0].all()
+    assert depth_edge_pixels(0.9 * x, jump).all()  # steeper: half a pixel is more than jump
+    holes = step.copy()
+    holes[:, 9] = np.nan  # a neighbour missing: the one-sided step counts
+    flags = depth_edge_pixels(holes, jump)
+    assert flags[:, 7:9].all() and not flags[:, 9].any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5), st.floats(-50, 50), st.floats(0.45, 12), st.integers(2, 17))
+def test_depth_edge_pixels_property_planes_pass_steps_are_flagged(a, b, c, size, col):
+    """Property: a log-linear depth less steep than 2 ln 1.5 per pixel (diagonals included) has no edge pixel inside
+    the image at any offset; adding a step of more than ln 1.5 between two columns flags both columns' pixels."""
+    from panorecon.fusion.warp import depth_edge_pixels
+
+    jump = math.log(1.5)
+    r, k = np.mgrid[0:12, 0:20].astype(float)
+    plane = 0.5 * (a * k + b * r) + c  # at most 0.5 per pixel along a diagonal
+    assert not depth_edge_pixels(plane, jump)[1:-1, 1:-1].any()
+    flags = depth_edge_pixels(plane + np.where(k >= col, size, 0.0), jump)
+    assert flags[:, col - 1].all() and flags[:, col].all()
