@@ -114,16 +114,15 @@ def horizon(decades: float, width: int = 512, height_m: float = 1.0) -> Scene:
 
 
 def scaled(scene: Scene, factor: float) -> Scene:
-    """``scene`` with its true distance times ``factor`` (colour, sky and masks unchanged; no world: a world
-    renders at its own scale). The name says the factor."""
+    """``scene`` with its true distance times ``factor`` (colour, sky, masks and name unchanged, so a simulated
+    teacher draws the same errors; no world: a world renders at its own scale). ``meta["scaled"]`` says the
+    factor."""
     if not (np.isfinite(factor) and factor > 0):
         raise ValueError(f"scaled: factor={factor!r}: expected a finite factor > 0")
     if scene.distance is None:
         raise ValueError(f"scaled: scene {scene.name!r} has no distance to scale")
     distance = (scene.distance.astype(np.float64) * factor).astype(np.float32)
-    return dataclasses.replace(
-        scene, name=f"{scene.name}x{factor:g}", distance=distance, world=None, meta={**scene.meta, "scaled": factor}
-    )
+    return dataclasses.replace(scene, distance=distance, world=None, meta={**scene.meta, "scaled": factor})
 
 
 # the named cases shared by the tests and the stress benchmark: name -> builder(width) -> Scene

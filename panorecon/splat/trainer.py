@@ -22,6 +22,7 @@ from ..checks import opt
 from ..device import device_record, reset_peak_memory, resolve_device, synchronize
 from ..geometry import PointCloud
 from ..io import peak_rss_mb, write_image, write_json
+from ..io.depth import check_scene_scale
 from ..metrics.lpips import lpips_distance, lpips_or_reason
 from .checkpoint import checkpoint_inputs, load_checkpoint, save_checkpoint
 from .initial import (
@@ -232,6 +233,7 @@ def _render(
         size,
         size,
         sh_degree=sh_degree,
+        near_plane=model.near_plane,
         backend=backend,
         return_contrib=return_contrib,
     )
@@ -442,6 +444,7 @@ def train(
     from tqdm import tqdm
 
     cfg = config
+    check_scene_scale(np.linalg.norm(point_cloud.xyz, axis=1), "the point cloud to train from")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

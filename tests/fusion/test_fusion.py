@@ -539,3 +539,34 @@ def test_depth_edge_pixels_property_planes_pass_steps_are_flagged(a, b, c, size,
     assert not depth_edge_pixels(plane, jump)[1:-1, 1:-1].any()
     flags = depth_edge_pixels(plane + np.where(k >= col, size, 0.0), jump)
     assert flags[:, col - 1].all() and flags[:, col].all()
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.floats(-4, 6), st.integers(0, 2**31 - 1))
+def test_fusion_output_scales_linearly_with_the_depth_scale(log_s, seed):
+    """Scale-freeness of the fusion: every view's depth times s gives the fused distance times s (the solve is
+    in log distance, its edges in log ratios), the same pixels seen."""
+    s = 10.0**log_s
+    views = make_views(make_layout("fibonacci", 20), 32, np.random.default_rng(seed), noise=0.01)
+    scaled = [ViewDepth(v.camera, (v.depth.astype(np.float64) * s).astype(np.float32), v.kind, v.valid) for v in views]
+    a = fuse_views(views, 32, 64, FusionConfig(tol=1e-9))
+    b = fuse_views(scaled, 32, 64, FusionConfig(tol=1e-9))
+    assert np.array_equal(a.seen, b.seen) and a.seen.mean() > 0.9
+    np.testing.assert_allclose(b.distance[a.seen], s * a.distance[a.seen].astype(np.float64), rtol=1e-4)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(-4, 6), st.floats(0, 5), st.integers(0, 2**31 - 1))
+def test_fusion_is_finite_on_random_extreme_depths(log_centre, decades, seed):
+    """Property: per-pixel random depths spanning ``decades`` decades around 10^log_centre (every pixel an edge
+    at the top of the range) give a finite positive distance wherever a pixel is seen."""
+    rng = np.random.default_rng(seed)
+    layout = make_layout("fibonacci", 12)
+    views = []
+    for f in layout.directions:
+        cam = centred_camera(f, 24, layout.fov_deg)
+        z = 10.0 ** (log_centre + decades * rng.uniform(-0.5, 0.5, (24, 24)))
+        views.append(ViewDepth(cam, z.astype(np.float32), "z", np.ones((24, 24), bool)))
+    r = fuse_views(views, 16, 32)
+    assert np.isfinite(r.distance[r.seen]).all() and (r.distance[r.seen] > 0).all()
+    assert np.isnan(r.distance[~r.seen]).all()

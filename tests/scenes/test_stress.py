@@ -33,7 +33,7 @@ def test_scaled_multiplies_every_distance_and_keeps_the_rest():
     s = CASES["cliff-1e2"](64)
     t = scaled(s, 1e-3)
     np.testing.assert_allclose(t.distance, s.distance * 1e-3, rtol=1e-6)
-    assert np.array_equal(t.rgb, s.rgb) and t.name.endswith("x0.001") and t.has_ground_truth
+    assert np.array_equal(t.rgb, s.rgb) and t.name == s.name and t.meta["scaled"] == 1e-3 and t.has_ground_truth
     with pytest.raises(ValueError, match="factor"):
         scaled(s, 0.0)
 
