@@ -214,6 +214,7 @@ def _print_points(scene, src, pc, report, cloud_path) -> None:
     )
     pts = report["points"]
     chamfer = f"{pts['chamfer']:.4f} m" if isinstance(pts.get("chamfer"), float) else pts.get("chamfer")
+    flying = f", flying {100 * pts['flying']:.3f} %" if isinstance(pts.get("flying"), float) else ""
     thin = report.get("thinning")
     if thin and thin.get("thinned"):
         print(
@@ -221,7 +222,7 @@ def _print_points(scene, src, pc, report, cloud_path) -> None:
             f"({thin['points_per_sr']:.0f} per sr)"
         )
     print(
-        f"{scene.name} / {src.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}, "
+        f"{scene.name} / {src.source} / {report['teacher']}: {len(pc)} points, depth {d}, chamfer {chamfer}{flying}, "
         f"{report['seconds']['total']:.2f} s, peak {report['peak_rss_mb']:.0f} MB -> {cloud_path}"
     )
     for warning in report.get("warnings", []):
@@ -317,7 +318,7 @@ def ablate(cfg: K.AblateConfig) -> int:
     if cfg.root is not None and not Path(cfg.root).is_dir():
         raise PanoreconInputError(f"--root {cfg.root}: no such folder (expected a dataset root)")
     overrides = dict(parse_override(t) for t in cfg.set)
-    suites = [load_suite(s, cfg.root, overrides, cfg.scene_dir) for s in cfg.suite]
+    suites = [load_suite(s, cfg.root, overrides, cfg.scene_dir, cfg.max_runs) for s in cfg.suite]
     stems = [s.name for s in suites]
     if len(set(stems)) != len(stems):
         raise PanoreconInputError(f"ablate: suites {', '.join(cfg.suite)} share a file name; rename one")

@@ -48,6 +48,7 @@ def demo_pictures(
                         size,
                         size,
                         sh_degree=model.sh_degree,
+                        near_plane=model.near_plane,
                         backend=backend,
                     )[0][0]
                     .clamp(0, 1)

@@ -50,6 +50,7 @@ import dataclasses
 import difflib
 import fnmatch
 import itertools
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -315,8 +316,8 @@ def _rendered_folder(scene: str, scene_dir: Path, spec: dict, width: int, seeds:
     return str(folder)
 
 
-def _expand_variants(scene: str, path: Path) -> list[str]:
-    """``bedroom@1..10`` -> ["bedroom@1", ..., "bedroom@10"] (both ends included), each name checked."""
+def _variant_span(scene: str, path: Path) -> tuple[str, int, int]:
+    """``bedroom@1..10`` -> ("bedroom", 1, 10), checked (integers 1 <= A <= B, a synthetic scene's variant)."""
     from ..scenes.catalog import VARIANT_SEP
     from ..scenes.registry import parse_variant
 
@@ -329,12 +330,57 @@ def _expand_variants(scene: str, path: Path) -> list[str]:
             f"suite {path}: scene {scene!r}: expected a population NAME{VARIANT_SEP}A..B with integers "
             f"1 <= A <= B, e.g. bedroom{VARIANT_SEP}1..10"
         )
-    names = [f"{base}{VARIANT_SEP}{k}" for k in range(int(first), int(last) + 1)]
     try:
-        parse_variant(names[0])
+        parse_variant(f"{base}{VARIANT_SEP}{first}")
     except PanoreconInputError as e:
         raise PanoreconInputError(f"suite {path}: {e}") from None
-    return names
+    return base, int(first), int(last)
+
+
+def _expand_variants(scene: str, path: Path) -> list[str]:
+    """``bedroom@1..10`` -> ["bedroom@1", ..., "bedroom@10"] (both ends included), each name checked."""
+    from ..scenes.catalog import VARIANT_SEP
+
+    base, first, last = _variant_span(scene, path)
+    return [f"{base}{VARIANT_SEP}{k}" for k in range(first, last + 1)]
+
+
+def _scene_count(scene: str, path: Path) -> int:
+    """How many scenes ``_expand_scene(scene, path)`` gives, without building a population's names (a dataset
+    pattern is listed: its size is the dataset's)."""
+    from ..scenes.catalog import VARIANT_SEP
+    from ..scenes.datasets import is_dataset_name
+
+    if VARIANT_SEP in scene and ".." in scene.rpartition(VARIANT_SEP)[2] and not is_dataset_name(scene):
+        _, first, last = _variant_span(scene, path)
+        return last - first + 1
+    return len(_expand_scene(scene, path))
+
+
+def count_rows(
+    path: Path, defaults: dict, grid: dict, variants: list[dict], seeds: list[int] | None, root: str | None
+) -> int:
+    """The number of rows ``load_suite`` expands a checked suite to, from the sizes alone: per variant, the
+    product of the [grid] lists' lengths, times the scenes each scene value stands for (a population
+    ``NAME@A..B`` is B - A + 1 scenes, a dataset pattern its matching panoramas), times the seeds. No row is
+    built: a suite of 10^6 rows is counted in microseconds (``load_suite(max_runs=...)`` refuses it before)."""
+    cache: dict = {}
+
+    def scenes(value) -> int:
+        if value not in cache:
+            cache[value] = _scene_count(_with_root(value, root, path), path)
+        return cache[value]
+
+    total = 0
+    for variant in variants:
+        others = math.prod(len(v) for k, v in grid.items() if k != "scene" or "scene" in variant)
+        if "scene" in variant:
+            total += others * scenes(variant["scene"])
+        elif "scene" in grid:
+            total += others * sum(scenes(v) for v in grid["scene"])
+        else:  # no scene anywhere: load_suite names the missing key when it builds the first row
+            total += others * (scenes(defaults["scene"]) if "scene" in defaults else 1)
+    return total * (len(seeds) if seeds else 1)
 
 
 def parse_override(text: str) -> tuple[str, object]:
@@ -350,13 +396,21 @@ def parse_override(text: str) -> tuple[str, object]:
     return key.strip(), parsed
 
 
-def load_suite(path, root: str | None = None, overrides: dict | None = None, scene_dir: str | None = None) -> Suite:
+def load_suite(
+    path,
+    root: str | None = None,
+    overrides: dict | None = None,
+    scene_dir: str | None = None,
+    max_runs: int | None = None,
+) -> Suite:
     """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file).
     ``root``: the dataset root for ``{root}`` (default $PANORECON_DATASET_ROOT). ``overrides``: settings that
     replace the suite's [defaults] (e.g. the paper's iters = 10000 on a GPU), checked as [defaults] are; a key
     that the suite's [grid] or [[variants]] sets is refused (the override would be silently lost).
     ``scene_dir``: each scene NAME is read from its ``panorecon render`` folder ``scene_dir/NAME`` (a machine
-    without Open3D); the rows' scene is that folder's path, so their runs and cache entries are their own."""
+    without Open3D); the rows' scene is that folder's path, so their runs and cache entries are their own.
+    ``max_runs``: a suite that expands to more rows than this is refused with its exact count (``count_rows``,
+    from the grid's sizes) before any row is built."""
     path = Path(path)
     root = root or os.environ.get(ROOT_ENV)
     if not path.is_file():
@@ -397,6 +451,10 @@ def load_suite(path, root: str | None = None, overrides: dict | None = None, sce
         for i, r in enumerate(paper_rows)
         if "match" in r
     }
+    if max_runs is not None and (n := count_rows(path, defaults, grid, variants, seeds, root)) > max_runs:
+        raise PanoreconInputError(
+            f"suite {path} expands to {n} runs, more than --max-runs {max_runs}; pass a larger --max-runs to run it"
+        )
     rows, reference_labels = [], []
     paper_found: dict[int, list[str]] = {i: [] for i in paper_picks}
     for variant in variants:

@@ -87,6 +87,10 @@ class FusionConfig:
     sampling: str = "linear"  # warp: "linear" (edge-aware bilinear, footprint-averaged) or "nearest" (warp.py)
     supersample: int | None = None  # sub-rays per ERP pixel side, finest level, "linear"; None: from the footprint
     edge_log: float = 0.1  # "linear" leaves out taps further than this (log distance) from the nearest one
+    # view pixels next to a depth edge above this (log distance; ln 1.5: a pixel put on the wrong side of, or
+    # blended across, a smaller jump is less than 50 % off) are not observed, and the upsampling keeps to one side
+    # of such an edge (warp.depth_edge_pixels, upsample.snap_to_side); None: off
+    edge_jump: float | None = math.log(1.5)
     resolution: str = "views"  # "views": solve up to the level the views resolve, then guided upsampling; "full"
     upsample_radius: int = 2  # guided upsampling window radius, solve-level pixels (upsample.py)
     upsample_eps: float = 1e-4  # guided upsampling regularisation, colour variance (colour in [0, 1])
@@ -116,6 +120,8 @@ class FusionConfig:
             )
         if not self.edge_log > 0:
             raise ValueError(f"FusionConfig.edge_log={self.edge_log!r}: expected > 0 (log distance)")
+        if self.edge_jump is not None and not (math.isfinite(self.edge_jump) and self.edge_jump > 0):
+            raise ValueError(f"FusionConfig.edge_jump={self.edge_jump!r}: expected None or > 0 (log distance)")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
         if self.warm_start not in ("data", "coarse"):
@@ -212,7 +218,12 @@ def _observe(views, dists, height, border_px: int = 0, cfg: FusionConfig | None 
     warp = (
         {}
         if cfg is None
-        else {"sampling": cfg.sampling, "supersample": cfg.supersample if finest else 1, "edge_log": cfg.edge_log}
+        else {
+            "sampling": cfg.sampling,
+            "supersample": cfg.supersample if finest else 1,
+            "edge_log": cfg.edge_log,
+            "edge_jump": cfg.edge_jump,
+        }
     )
     obs = [warp_to_erp(v, height, width, dirs, d, border_px, **warp) for v, d in zip(views, dists)]
     seen = np.zeros(height * width, bool)
@@ -602,7 +613,7 @@ def fuse_views(
         tu = time.perf_counter()
         with np.errstate(over="ignore"):
             distance = guided_upsample(
-                np.where(seen, xs, np.nan), guide, height, width, cfg.upsample_radius, cfg.upsample_eps
+                np.where(seen, xs, np.nan), guide, height, width, cfg.upsample_radius, cfg.upsample_eps, cfg.edge_jump
             )
         seen = np.isfinite(distance) | np.isinf(distance)
         report["upsample"] = {

@@ -10,9 +10,11 @@ detail, the part the solve level could not hold, is carried into the depth throu
 steps where the colour steps (at the panorama's resolution, not the views'); where the colour is flat, or varies
 without the depth, q is the bilinear upsampling of p (the guided filter's own output, a·I + b, would also smooth
 p over the window there). ``eps`` (colour variance, colour in [0, 1]) sets how strong a colour edge must be to be
-followed. With ``edge_log``, q is also kept inside the range of the four solve-level pixels around it and, where
-these span a depth edge (more than ``edge_log`` apart), snapped to one side (``snap_to_side``); off by default:
-a steep but smooth depth (a floor at grazing angles) passes the same test and would be made blocky.
+followed. With ``edge_log``, q is also kept inside the range of the seen solve-level pixels among the four around
+it and, where these span a depth edge (more than ``edge_log`` apart) or one of the four is unseen, snapped to one
+side (``snap_to_side``): a pixel at an edge the solve level cannot resolve takes one side's depth, never a blend of
+the two (a flying point) nor of an unseen pixel's fill. ``fuse_views`` passes ``FusionConfig.edge_jump`` (ln 1.5:
+a blend across a smaller jump is less than 50 % off either side); off here by default (None).
 
 ERP conventions: windows and interpolation wrap at the seam (longitude) and clamp at the poles. Pixels the solve
 did not see (NaN) take the median log distance inside the filter and come out NaN (a full-size pixel is unseen
@@ -112,18 +114,27 @@ def _taps(p: np.ndarray, r0: int, r1: int, height: int, width: int):
     return values, weights
 
 
-def snap_to_side(q: np.ndarray, values: np.ndarray, weights: np.ndarray, edge_log: float) -> np.ndarray:
-    """The guided value ``q`` [...] kept inside the range of the four coarse taps ``values`` [4, ...] around the
-    pixel (the colour adds no depth the solve did not find); where the taps span a depth edge (max - min >
-    ``edge_log``, log distance), the bilinear mean of the taps within ``edge_log`` of the tap nearest q
-    (renormalised ``weights``): the pixel lies on one side of the edge, never in between (no flying pixels)."""
-    lo, hi = values.min(0), values.max(0)
-    q = np.clip(q, lo, hi)
-    near = np.take_along_axis(values, np.abs(values - q).argmin(0)[None], 0)[0]
-    use = np.abs(values - near) <= edge_log
+def snap_to_side(
+    q: np.ndarray, values: np.ndarray, weights: np.ndarray, edge_log: float, seen: np.ndarray | None = None
+) -> np.ndarray:
+    """The guided value ``q`` [...] kept inside the range of the seen ones of the four coarse taps ``values``
+    [4, ...] around the pixel (the colour adds no depth the solve did not find); where the seen taps span a depth
+    edge (max - min > ``edge_log``, log distance) or a tap is unseen (``seen`` [4, ...] bool; None: all seen),
+    the bilinear mean of the seen taps within ``edge_log`` of the seen tap nearest q (renormalised ``weights``):
+    the pixel lies on one side of the edge, never in between, and takes nothing of an unseen tap's fill value (no
+    flying pixels). A pixel without a seen tap keeps q (it comes out unseen)."""
+    seen = np.ones(values.shape, bool) if seen is None else seen
+    lo = np.where(seen, values, np.inf).min(0)
+    hi = np.where(seen, values, -np.inf).max(0)
+    some = seen.any(0)
+    qc = np.where(some, np.clip(q, np.where(some, lo, q), np.where(some, hi, q)), q)
+    dist = np.where(seen, np.abs(values - qc), np.inf)
+    near = np.take_along_axis(values, dist.argmin(0)[None], 0)[0]
+    use = seen & (np.abs(values - near) <= edge_log)
     wsum = (weights * use).sum(0)
     side = (values * weights * use).sum(0) / np.maximum(wsum, 1e-12)
-    return np.where(hi - lo > edge_log, side, q)
+    snap = some & ((hi - lo > edge_log) | ~seen.all(0))
+    return np.where(snap, side, qc)
 
 
 def _filled(log_coarse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -165,7 +176,8 @@ def guided_upsample(
         else:
             q = c[..., 0]
         if edge_log is not None:
-            q = snap_to_side(q, *_taps(p, r0, r1, height, width), edge_log)
+            values, weights = _taps(p, r0, r1, height, width)
+            q = snap_to_side(q, values, weights, edge_log, _taps(seen, r0, r1, height, width)[0] > 0.5)
         band = out[r0:r1]
         np.exp(q, out=band)
         band[c[..., -1] < 0.5] = np.nan
@@ -197,12 +209,13 @@ def guided_upsample_reference(
             bilinear_upsample_reference(a, height, width) * detail
         ).sum(-1)
     if edge_log is not None:
-        q = _snap_reference(q, p.astype(np.float64), edge_log)
+        q = _snap_reference(q, p.astype(np.float64), seen > 0.5, edge_log)
     return np.where(seen_up, np.exp(q), np.nan).astype(np.float32)
 
 
-def _snap_reference(q: np.ndarray, p: np.ndarray, edge_log: float) -> np.ndarray:
-    """``snap_to_side`` written per pixel with loops over the taps (the reference): [H, W] float64."""
+def _snap_reference(q: np.ndarray, p: np.ndarray, seen: np.ndarray, edge_log: float) -> np.ndarray:
+    """``snap_to_side`` written per pixel with loops over the taps (the reference): [H, W] float64; ``seen``
+    [h, w] bool the solve level's seen pixels."""
     H, W = q.shape
     h, w = p.shape
     y = np.clip((np.arange(H) + 0.5) * h / H - 0.5, 0, h - 1)
@@ -215,16 +228,19 @@ def _snap_reference(q: np.ndarray, p: np.ndarray, edge_log: float) -> np.ndarray
             x0 = int(np.floor(x[j]))
             fx = x[j] - x0
             taps = [
-                (p[y0, x0 % w], (1 - fy) * (1 - fx)),
-                (p[y0, (x0 + 1) % w], (1 - fy) * fx),
-                (p[min(y0 + 1, h - 1), x0 % w], fy * (1 - fx)),
-                (p[min(y0 + 1, h - 1), (x0 + 1) % w], fy * fx),
+                (y0, x0 % w, (1 - fy) * (1 - fx)),
+                (y0, (x0 + 1) % w, (1 - fy) * fx),
+                (min(y0 + 1, h - 1), x0 % w, fy * (1 - fx)),
+                (min(y0 + 1, h - 1), (x0 + 1) % w, fy * fx),
             ]
-            vals = [v for v, _ in taps]
+            kept = [(p[r, c], wt) for r, c, wt in taps if seen[r, c]]
+            if not kept:
+                continue
+            vals = [v for v, _ in kept]
             out[i, j] = min(max(q[i, j], min(vals)), max(vals))
-            if max(vals) - min(vals) <= edge_log:
+            if max(vals) - min(vals) <= edge_log and len(kept) == 4:
                 continue
             near = min(vals, key=lambda v: abs(v - out[i, j]))
-            kept = [(v, wt) for v, wt in taps if abs(v - near) <= edge_log]
-            out[i, j] = sum(v * wt for v, wt in kept) / max(sum(wt for _, wt in kept), 1e-12)
+            side = [(v, wt) for v, wt in kept if abs(v - near) <= edge_log]
+            out[i, j] = sum(v * wt for v, wt in side) / max(sum(wt for _, wt in side), 1e-12)
     return out

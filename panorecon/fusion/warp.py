@@ -64,6 +64,8 @@ def warp_to_erp(
     sampling: str = "nearest",
     supersample: int = 1,
     edge_log: float = 0.1,
+    edge_jump: float | None = None,
+    edge_px: int = 1,
 ) -> ErpObservation:
     """Backward warp of a view's ray distance onto the ERP grid. ``directions`` [H*W, 3] may be passed to
     share the ERP rays between views; ``distance`` [h, w] overrides ``view.to_distance()`` (e.g. after affine
@@ -87,9 +89,11 @@ def warp_to_erp(
     d = dist[rows, cols]
     ok = np.isfinite(d) & (d > 0)
     border = region_border(np.isfinite(dist) & (dist > 0), border_px)[rows, cols]
-    index, rows, cols, cos, border, x, y = index[ok], rows[ok], cols[ok], cos[ok], border[ok], x[ok], y[ok]
     with np.errstate(divide="ignore", invalid="ignore"):
         log_view = np.log(np.where(dist > 0, dist, np.nan).astype(np.float64))
+    if edge_jump is not None:
+        ok &= ~depth_edge_pixels(log_view, edge_jump, edge_px)[rows, cols]
+    index, rows, cols, cos, border, x, y = index[ok], rows[ok], cols[ok], cos[ok], border[ok], x[ok], y[ok]
     if sampling == "nearest":
         value = log_view[rows, cols]
     else:
@@ -103,6 +107,28 @@ def warp_to_erp(
         keep = np.isfinite(value)  # every sub-ray fell outside the view: the centre ray alone is not enough
         index, value, cos, border = index[keep], value[keep], cos[keep], border[keep]
     return ErpObservation(index + r0 * width, value, cos**2, border)
+
+
+def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1) -> np.ndarray:
+    """[h, w] bool: the valid view pixels whose log distance differs from one of their 8 valid neighbours by more
+    than ``jump`` (both pixels of every such pair), dilated to ``px`` pixels (Chebyshev).
+
+    Such a pixel may straddle a depth edge: a ray through it can belong to either side, and a read or a blend
+    there can be anything in between. A pixel put on the wrong side of (or blended across) a step of at most
+    ``jump`` is off by less than that; a smooth slope steeper than ``jump`` per pixel (a floor within a degree of
+    the horizon, a teacher's blurred edge) is flagged too: the view does not resolve it."""
+    h, w = log_view.shape
+    pad = np.full((h + 2, w + 2), np.nan)
+    pad[1:-1, 1:-1] = log_view
+    edge = np.zeros((h, w), bool)
+    with np.errstate(invalid="ignore"):
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                if dr or dc:  # False where either pixel is invalid
+                    edge |= np.abs(pad[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w] - log_view) > jump
+    if px > 1:
+        edge = cv2.dilate(edge.astype(np.uint8), np.ones((2 * px - 1, 2 * px - 1), np.uint8)).astype(bool)
+    return edge & np.isfinite(log_view)
 
 
 def supersample_rays(pixels: np.ndarray, height: int, width: int, k: int, sub: int | None = None) -> np.ndarray:

@@ -38,6 +38,12 @@ PLAUSIBLE_MEDIAN_M = (0.2, 1000.0)
 CLOSED_LATITUDE_DEG = 60.0
 CLOSED_MIN_FRACTION = 0.9
 CLOSED_MAX_MEDIAN_M = 50.0
+# the median ray distance (metres) the pipeline computes in: the trainer's float32 holds squared lengths (3D and
+# projected covariances, the Pearson term's sums of squared depths over a label view: ~1e4 pixels) and Adam's
+# eps 1e-15 sits below gradients that scale as 1 / length; within this window both stay at least 1e6 away from
+# float32's limits (1.2e-38, 3.4e38) and every length constant is relative to the scene (splat/model.py), so a
+# scene is the same problem at any scale in it. Outside it: PanoreconInputError, not a quietly bad model
+SCENE_MEDIAN_RANGE_M = (1e-4, 1e6)
 # the field's stored units (metres per unit), tried in this order when a median is implausible
 UNIT_CONVENTIONS = (
     ("millimetres (Structured3D)", 1e-3),
@@ -101,6 +107,22 @@ def unit_warning(distance_m: np.ndarray, scale: float, what: str) -> str | None:
         f"{what}: median ray distance {median:.4g} m (stored values x {scale:g} m) is implausible for {scene} "
         f"(expected {lo:g} to {hi:g} m); {hint}"
     )
+
+
+def check_scene_scale(distance_m: np.ndarray, what: str) -> None:
+    """PanoreconInputError naming ``what`` and the value when the median finite positive distance of
+    ``distance_m`` (any shape, metres) lies outside ``SCENE_MEDIAN_RANGE_M``; nothing for an empty map."""
+    d = np.asarray(distance_m, np.float64)
+    with np.errstate(invalid="ignore"):
+        d = d[np.isfinite(d) & (d > 0)]
+    if d.size == 0:
+        return
+    median, (lo, hi) = float(np.median(d)), SCENE_MEDIAN_RANGE_M
+    if not lo <= median <= hi:
+        raise PanoreconInputError(
+            f"{what}: median distance {median:.3g} m is outside the {lo:g} to {hi:g} m that panorecon computes in "
+            "(float32 training); give the depth in another unit (--depth-scale) so that it falls inside"
+        )
 
 
 def default_depth_scale(path: str | os.PathLike) -> float:

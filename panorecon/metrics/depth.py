@@ -1,5 +1,10 @@
-"""Depth metrics (AbsRel, RMSE, delta < 1.25) over pixels with truth, median-aligned unless metric, or aligned by
-scale and shift in inverse depth for affine-invariant predictions."""
+"""Depth metrics (AbsRel, RMSE, delta < 1.25, the flying share) over pixels with truth, median-aligned unless
+metric, or aligned by scale and shift in inverse depth for affine-invariant predictions.
+
+Flying points: pixels (points) whose aligned distance is more than ``FLYING_REL`` (50 %) off the truth, the
+points a fusion throws into the air between a foreground and its background when it blends across a depth edge
+(or puts a pixel on the wrong side of one). A share, not a mean: one point a thousand times too far weighs as
+much as one twice too far, so a few of them cannot hide in (or dominate) AbsRel."""
 
 from __future__ import annotations
 
@@ -8,6 +13,7 @@ import math
 import numpy as np
 
 METRIC_CHUNK = 1 << 22  # pixels per chunk of depth_metrics' sums
+FLYING_REL = 0.5  # a point more than this far off its true distance (relative) is a flying point
 
 
 def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", mask: np.ndarray | None = None) -> dict:
@@ -16,8 +22,8 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
     to scale); "inverse-affine" fits 1/truth ~ a / pred + b by least squares (float64) and compares
     1 / (a / pred + b), dropping pixels where that is not positive (the usual protocol for affine-invariant
     disparity; ``shift`` = b, in 1/metres); "none" compares as is (metric). Returns abs_rel, rmse (metres),
-    delta1 (fraction), pixels, scale (the alignment factor applied). With no pixel to compare, the values are
-    NaN and pixels = 0."""
+    delta1 (fraction), flying (the share of pixels more than ``FLYING_REL`` off, after the alignment), pixels,
+    scale (the alignment factor applied). With no pixel to compare, the values are NaN and pixels = 0."""
     if pred.shape != truth.shape:
         raise ValueError(f"depth_metrics: prediction {pred.shape} and truth {truth.shape} differ in shape")
     if align not in ("median", "none", "inverse-affine"):
@@ -31,6 +37,7 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
             "abs_rel": float("nan"),
             "rmse": float("nan"),
             "delta1": float("nan"),
+            "flying": float("nan"),
             "pixels": 0,
             "scale": float("nan"),
             "align": align,
@@ -47,6 +54,7 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
                 "abs_rel": float("nan"),
                 "rmse": float("nan"),
                 "delta1": float("nan"),
+                "flying": float("nan"),
                 "pixels": 0,
                 "scale": float(scale),
                 "shift": float(shift),
@@ -57,17 +65,20 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
     else:
         scale = float(np.median(t / p)) if align == "median" else 1.0
     # sums over chunks of float64 temporaries (full-size maps at 8K would need several 268 MB ones at once)
-    rel, sq, d1 = 0.0, 0.0, 0
+    rel, sq, d1, fly = 0.0, 0.0, 0, 0
     for i in range(0, len(p), METRIC_CHUNK):
         pc = p[i : i + METRIC_CHUNK] * (1.0 if align == "inverse-affine" else scale)
         tc = t[i : i + METRIC_CHUNK]
-        rel += float(np.sum(np.abs(pc - tc) / tc))
+        r = np.abs(pc - tc) / tc
+        rel += float(np.sum(r))
         sq += float(np.sum((pc - tc) ** 2))
         d1 += int(np.count_nonzero(np.maximum(pc / tc, tc / pc) < 1.25))
+        fly += int(np.count_nonzero(r > FLYING_REL))
     return {
         "abs_rel": rel / len(p),
         "rmse": float(np.sqrt(sq / len(p))),
         "delta1": d1 / len(p),
+        "flying": fly / len(p),
         "pixels": int(len(p)),
         "scale": float(scale),
         "align": align,
@@ -141,3 +152,24 @@ def ws_depth_metrics(pred: np.ndarray, truth: np.ndarray, scale: float, mask: np
     if total == 0:
         return {"ws_abs_rel": float("nan"), "ws_rmse": float("nan"), "ws_delta1": float("nan")}
     return {"ws_abs_rel": rel / total, "ws_rmse": math.sqrt(sq / total), "ws_delta1": d1 / total}
+
+
+def point_flying_share(xyz: np.ndarray, truth: np.ndarray, scale: float = 1.0) -> tuple[float, int]:
+    """The flying share of a cloud seen from the panorama centre: of the points ``xyz`` [N, 3] (metres, the
+    panorama's frame) x ``scale`` whose ray from the centre meets a finite positive true ERP distance ``truth``
+    [H, W] (nearest pixel), the share whose distance from the centre is more than ``FLYING_REL`` off that
+    distance -> (share, points compared; NaN and 0 when none). For a cloud back-projected from a depth map it is
+    that map's ``flying``; a point off the centre's line of sight (a multi-view baseline's point behind a
+    surface) counts as flying too."""
+    from ..geometry import sample_erp
+
+    pts = np.asarray(xyz, np.float64) * scale
+    r = np.linalg.norm(pts, axis=1)
+    ok = r > 0
+    true = sample_erp(np.asarray(truth, np.float32), pts[ok] / r[ok, None], "nearest").astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        use = np.isfinite(true) & (true > 0)
+    if not use.any():
+        return float("nan"), 0
+    off = np.abs(r[ok][use] - true[use]) / true[use]
+    return float(np.mean(off > FLYING_REL)), int(use.sum())

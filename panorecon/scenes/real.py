@@ -13,7 +13,7 @@ import numpy as np
 
 from ..geometry import erp_z_to_distance_factor
 from ..io import PanoreconInputError, read_image
-from ..io.depth import DEPTH_KINDS, default_depth_scale, read_depth_raw, unit_warning
+from ..io.depth import DEPTH_KINDS, check_scene_scale, default_depth_scale, read_depth_raw, unit_warning
 from ..io.files import check_erp_shape
 from .base import Scene
 from .registry import SceneSpec, register_scene
@@ -79,8 +79,8 @@ def read_erp_depth(path: str | os.PathLike, scale: float | None = None, kind: st
     values from ``io.depth.read_depth_raw`` times ``scale`` metres per unit; ``kind`` "z": cube-face z-depth,
     brought to ray distance).
 
-    Raises PanoreconInputError for a file that is not a 2:1 ERP, a bad scale or kind, or a map with no
-    valid pixel."""
+    Raises PanoreconInputError for a file that is not a 2:1 ERP, a bad scale or kind, a map with no
+    valid pixel, or one whose median distance is outside ``io.depth.SCENE_MEDIAN_RANGE_M``."""
     path = Path(path)
     if kind not in DEPTH_KINDS:
         raise PanoreconInputError(f"--depth-kind {kind!r}: expected one of {', '.join(DEPTH_KINDS)}")
@@ -94,6 +94,7 @@ def read_erp_depth(path: str | os.PathLike, scale: float | None = None, kind: st
         d = d * erp_z_to_distance_factor(*d.shape)
     if not np.isfinite(d).any():
         raise PanoreconInputError(f"{path}: the depth map has no valid pixel (all 0, 65535, NaN, negative or >= 1e9)")
+    check_scene_scale(d, str(path))
     warning = unit_warning(d, scale, str(path))
     if warning:
         log.warning("WARNING: %s", warning)

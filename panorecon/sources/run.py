@@ -10,7 +10,7 @@ import numpy as np
 
 from ..geometry import back_project_erp, thin_on_sphere
 from ..io import PanoreconInputError, peak_rss_mb
-from ..metrics import depth_metrics, edge_depth_metrics, point_metrics, ws_depth_metrics
+from ..metrics import depth_metrics, edge_depth_metrics, point_flying_share, point_metrics, ws_depth_metrics
 from ..teachers import get_teacher, seeded_teacher
 from ..teachers.base import require_truth, true_view_distance
 from .registry import get_source
@@ -127,8 +127,10 @@ def run_source(
     peak_rss_mb (process peak so far), fusion solver report, depth and point metrics against the truth
     (median-aligned unless the teacher is metric; the cloud is scaled by the same factor before point
     metrics) or 'n/a: <reason>', and the median per-view teacher AbsRel; for affine-invariant teachers also
-    ``depth_inverse_affine`` (the fused map aligned by scale and shift in inverse distance). The fused ERP ray
-    distance the metrics are computed from ([H, W] float32 metres, NaN unknown) is kept in
+    ``depth_inverse_affine`` (the fused map aligned by scale and shift in inverse distance). ``depth["flying"]``
+    and ``points["flying"]``: the share of pixels / points more than 50 % off their true distance after the same
+    alignment (``metrics.depth.FLYING_REL``; the points' on their ray from the centre, ``point_flying_share``).
+    The fused ERP ray distance the metrics are computed from ([H, W] float32 metres, NaN unknown) is kept in
     ``pc.meta["erp_distance"]`` when the source gives one. ``seed`` seeds the teacher (``get_teacher``) and a
     source that takes a ``seed`` (random points); see :func:`uses_seed`. ``max_points``: the cloud thinned evenly
     over the sphere to at most that many points (``thin_on_sphere``; ``report["thinning"]`` gives the density)
@@ -216,6 +218,12 @@ def run_source(
             }
         else:
             report["points"] = {**point_metrics(pred * scale, truth, max_points=POINT_METRIC_SAMPLE), "count": len(pc)}
+            flying, compared = point_flying_share(pred, scene.distance, scale)
+            report["points"]["flying"] = (
+                flying
+                if compared >= MIN_METRIC_POINTS
+                else (f"n/a: {compared} points on a ray with a true distance (fewer than {MIN_METRIC_POINTS})")
+            )
         report["points"]["scale_applied"] = scale
         if info.get("view_depths"):
             report["teacher_per_view_abs_rel_median"] = _per_view_abs_rel(scene, info["view_depths"])

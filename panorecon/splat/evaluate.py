@@ -95,6 +95,7 @@ def _render(
         size,
         size,
         sh_degree=sh_degree,
+        near_plane=model.near_plane,
         backend=backend,
         return_contrib=return_contrib,
     )

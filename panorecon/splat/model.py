@@ -1,4 +1,5 @@
-"""The Gaussian model: parameters in their optimisation spaces, initialised from any ``PointCloud``.
+"""The Gaussian model: parameters in their optimisation spaces, initialised from any ``PointCloud``, and its
+near plane (``near_plane_for``: relative to the scene's own scale).
 
 means [N,3] metres; quats [N,4] wxyz (unnormalised); log_scales [N,3] (log metres); logit_opacities [N];
 sh0 [N,1,3] (degree-0 SH of the colour) and shN [N,(d+1)^2-1,3]. float32.
@@ -12,6 +13,15 @@ from torch import nn
 
 from ..geometry import PointCloud
 from .rasterize.sh import C0
+
+# the rasterizer's near plane, a fraction of the distance from the origin within which the nearest 1 % of the
+# Gaussians lie: 1 cm for a room whose nearest surfaces are ~1 m from the panorama centre (gsplat's fixed 0.01 m),
+# and the same fraction of the same room given in millimetres or kilometres (a fixed plane culls a 5 mm room)
+NEAR_FRACTION = 0.01
+NEAR_QUANTILE = 0.01
+# the smallest initial scale, a fraction of the median nearest-neighbour distance: duplicate points (distance 0)
+# stay finite at any scene scale
+MIN_SCALE_FRACTION = 1e-3
 
 PARAM_NAMES = ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")  # in the constructor's order
 
@@ -29,9 +39,24 @@ def nearest_neighbour_scale(xyz: np.ndarray, k: int = 3) -> np.ndarray:
     return d[:, 1:].mean(1)  # drop the point itself (distance 0, or a duplicate's 0: the same value)
 
 
+def near_plane_for(means: torch.Tensor) -> float:
+    """The rasterizer's near plane (metres) for Gaussians at ``means`` [N, 3]: ``NEAR_FRACTION`` x the
+    ``NEAR_QUANTILE`` quantile of their distances from the origin (the panorama centre, where the label cameras
+    are); scales with the scene, so a scene rendered at any scale is the same picture. Computed once, when a
+    model is built (one read back to the host); 0.01 for a model without a Gaussian at a positive distance."""
+    with torch.no_grad():
+        r = torch.linalg.vector_norm(means.detach().float(), dim=1)
+        r = r[torch.isfinite(r) & (r > 0)]
+        if not len(r):
+            return 0.01
+        k = max(1, int(NEAR_QUANTILE * len(r)))
+        return NEAR_FRACTION * float(r.kthvalue(k).values)
+
+
 class GaussianModel(nn.Module):
     def __init__(self, means, quats, log_scales, logit_opacities, sh0, shN):
         super().__init__()
+        self.near_plane = near_plane_for(means)
         self.means = nn.Parameter(means)
         self.quats = nn.Parameter(quats)
         self.log_scales = nn.Parameter(log_scales)
@@ -40,9 +65,10 @@ class GaussianModel(nn.Module):
         self.shN = nn.Parameter(shN)
 
     @classmethod
-    def from_point_cloud(cls, pc: PointCloud, sh_degree: int = 3, init_opacity: float = 0.1, min_scale: float = 1e-7):
+    def from_point_cloud(cls, pc: PointCloud, sh_degree: int = 3, init_opacity: float = 0.1):
         """Isotropic Gaussians at the points: scale = mean distance to the 3 nearest neighbours (at least
-        ``min_scale`` metres, so duplicate points stay finite), colour in the DC band, opacity ``init_opacity``."""
+        ``MIN_SCALE_FRACTION`` of their median, so duplicate points stay finite), colour in the DC band, opacity
+        ``init_opacity``."""
         if len(pc) == 0:
             raise ValueError("GaussianModel.from_point_cloud: the point cloud is empty")
         if not 0 <= sh_degree <= 3:
@@ -50,7 +76,9 @@ class GaussianModel(nn.Module):
         if not 0 < init_opacity < 1:
             raise ValueError(f"init_opacity={init_opacity}: expected a value in (0, 1)")
         n = len(pc)
-        scale = np.maximum(nearest_neighbour_scale(pc.xyz), min_scale)
+        nn_scale = nearest_neighbour_scale(pc.xyz)
+        positive = nn_scale[nn_scale > 0]
+        scale = np.maximum(nn_scale, MIN_SCALE_FRACTION * (float(np.median(positive)) if len(positive) else 1.0))
         log_s = torch.from_numpy(np.log(scale)).float()[:, None].repeat(1, 3)
         quats = torch.zeros(n, 4)
         quats[:, 0] = 1

@@ -43,6 +43,7 @@ def _render(
             width,
             height,
             sh_degree=model.sh_degree,
+            near_plane=model.near_plane,
             backend=backend,
         )[0]
     return img.clamp(0, 1).numpy()

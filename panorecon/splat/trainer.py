@@ -21,6 +21,7 @@ from ..checks import opt
 from ..device import device_record, reset_peak_memory, resolve_device, synchronize
 from ..geometry import PointCloud
 from ..io import peak_rss_mb, write_image, write_json
+from ..io.depth import check_scene_scale
 from .checkpoint import checkpoint_inputs, load_checkpoint, save_checkpoint
 from .evaluate import _cameras, _evaluate, _heldout_psnr, _render, best_heldout, heldout_plateau, psnr
 from .initial import (
@@ -220,6 +221,7 @@ def train(
     from tqdm import tqdm
 
     cfg = config
+    check_scene_scale(np.linalg.norm(point_cloud.xyz, axis=1), "the point cloud to train from")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

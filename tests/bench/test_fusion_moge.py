@@ -42,7 +42,8 @@ def test_rows_carry_both_methods_and_the_ratios(tmp_path, monkeypatch):
     by = {r["method"]: r for r in rows}
     assert set(by) == {"moge", "fuse_views", "fibonacci-own", "fuse_views[nearest]"}
     for r in rows:
-        assert np.isfinite(r["abs_rel"]) and r["abs_rel"] < 0.05 and r["pixels"] == 64 * 128 and r["peak_mb"] > 0
+        # fuse_views leaves out the pixels every 48 px view sees at a depth step over 1.5x (depth_edge_pixels)
+        assert np.isfinite(r["abs_rel"]) and r["abs_rel"] < 0.05 and r["pixels"] >= 0.99 * 64 * 128 and r["peak_mb"] > 0
     assert by["fuse_views"]["speedup_vs_moge"] == by["moge"]["seconds"] / by["fuse_views"]["seconds"]
     json.dumps(rows)
 

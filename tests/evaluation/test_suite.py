@@ -406,3 +406,64 @@ def test_the_shipped_tables_tie_the_papers_rows_to_ours():
     }
     for name, figures in expect.items():
         assert load_suite(suites / f"{name}.toml").paper_figures()["psnr_pl"] == figures, name
+
+
+MILLION = """
+seeds = [{seeds}]
+[defaults]
+source = "fibonacci"
+teacher = "sim:clean"
+train = false
+[grid]
+scene = ["bedroom@1..1000", "beach"]
+views = [{views}]
+"""
+
+
+def test_a_million_row_suite_is_refused_with_its_exact_count_before_any_row_is_built(tmp_path, monkeypatch):
+    import panorecon.evaluation.suite as suite_mod
+
+    built = []
+    monkeypatch.setattr(suite_mod, "Row", lambda *a, **k: built.append(1))
+    monkeypatch.setattr(suite_mod, "_expand_variants", lambda *a: built.append(1))
+    # (1000 + 1) scenes x 100 view counts x 10 seeds = 1,001,000 rows
+    text = MILLION.format(views=", ".join(map(str, range(1, 101))), seeds=", ".join(map(str, range(10))))
+    with pytest.raises(PanoreconInputError) as e:
+        load_suite(write(tmp_path, text), max_runs=10_000)
+    assert str(e.value) == (
+        f"suite {tmp_path / 's.toml'} expands to 1001000 runs, more than --max-runs 10000; "
+        "pass a larger --max-runs to run it"
+    )
+    assert not built
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        MILLION.format(views="3, 5", seeds="0, 1, 2"),
+        MILLION.format(views="3", seeds="0").replace('scene = ["bedroom@1..1000", "beach"]', "")
+        + '[[variants]]\nscene = "bedroom@2..4"\n[[variants]]\nscene = "beach"\n',
+        POPULATION.format("bedroom@1..3"),
+        BASE + "[grid]\nviews = [3, 4]\nw_l1 = [0.5, 0.8]\n[[variants]]\nlabel = 'a'\n[[variants]]\nlabel = 'b'\n",
+        BASE + "[grid]\nscene = ['bedroom', 'beach@1..2']\n[[variants]]\nscene = 'beach'\n[[variants]]\nviews = 3\n",
+    ],
+)
+def test_the_row_count_from_the_sizes_is_the_expanded_count(tmp_path, text):
+    n = len(load_suite(write(tmp_path, text)).rows)
+    assert len(load_suite(write(tmp_path, text), max_runs=n).rows) == n
+    with pytest.raises(PanoreconInputError, match=f"expands to {n} runs, more than --max-runs {n - 1};"):
+        load_suite(write(tmp_path, text), max_runs=n - 1)
+
+
+def test_every_shipped_suite_counts_its_rows_exactly():
+    from pathlib import Path
+
+    from panorecon.evaluation.suite import count_rows, tomllib
+
+    for p in sorted((Path(__file__).parents[2] / "eval" / "suites").glob("*.toml")):
+        if "{root}" in p.read_text():
+            continue
+        data = tomllib.loads(p.read_text())
+        seeds = data.get("seeds")
+        n = count_rows(p, data.get("defaults", {}), data.get("grid", {}), data.get("variants", [{}]), seeds, None)
+        assert n == len(load_suite(p).rows), p.name

@@ -19,16 +19,17 @@ from panorecon.metrics import depth_metrics
 from .conftest import make_views
 
 
+@pytest.mark.parametrize("edge_log", [None, np.log(1.5)])
 @pytest.mark.parametrize("with_guide", [False, True])
 @pytest.mark.parametrize("rows", [1, 5, 256])
-def test_banded_guided_upsampling_equals_the_reference(with_guide, rows):
+def test_banded_guided_upsampling_equals_the_reference(with_guide, rows, edge_log):
     rng = np.random.default_rng(0)
     coarse = (0.3 * rng.standard_normal((8, 16))).astype(np.float32)
     coarse[3, 4] = coarse[0, 0] = np.nan  # unseen pixels, one at the pole row and the seam
     coarse[:, 9:] += 0.8  # a depth edge across the map
     guide = rng.integers(0, 256, (32, 64, 3)).astype(np.uint8) if with_guide else None
-    fast = guided_upsample(coarse, guide, 32, 64, rows=rows)
-    ref = guided_upsample_reference(coarse, guide, 32, 64)
+    fast = guided_upsample(coarse, guide, 32, 64, edge_log=edge_log, rows=rows)
+    ref = guided_upsample_reference(coarse, guide, 32, 64, edge_log=edge_log)
     assert np.array_equal(np.isnan(fast), np.isnan(ref))
     assert np.isnan(fast).any()
     np.testing.assert_allclose(fast[np.isfinite(ref)], ref[np.isfinite(ref)], rtol=2e-6)
@@ -76,6 +77,25 @@ def test_snapped_values_lie_on_one_side_of_an_edge(q0, jump, seed):
     spans = values.max(0) - values.min(0) > 0.1
     gap = np.abs(values - out).min(0)
     assert (gap[spans] <= 0.1 + 1e-12).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-2, 2), st.floats(0.45, 9), st.integers(0, 2**31 - 1))
+def test_snapped_values_take_nothing_of_an_unseen_tap(q0, jump, seed):
+    """Property: with some taps unseen (their fill value far off), the result is a blend of seen taps on one side
+    of any edge: inside the seen taps' range and within edge_log of one of them."""
+    rng = np.random.default_rng(seed)
+    values = rng.normal(0, 0.02, (4, 50))
+    values[rng.random((4, 50)) < 0.5] += jump
+    seen = rng.random((4, 50)) < 0.7
+    seen[0] = True  # at least one seen tap per pixel
+    values[~seen] = 1e3  # an unseen pixel's fill value: nothing of it may leak
+    weights = rng.random((4, 50))
+    weights /= weights.sum(0)
+    out = snap_to_side(q0 + rng.normal(0, 1, 50), values, weights, np.log(1.5), seen)
+    lo, hi = np.where(seen, values, np.inf).min(0), np.where(seen, values, -np.inf).max(0)
+    assert (out >= lo - 1e-12).all() and (out <= hi + 1e-12).all()
+    assert (np.where(seen, np.abs(values - out), np.inf).min(0) <= np.log(1.5) + 1e-12).all()
 
 
 def test_supported_height_follows_the_views_focal_length(fib20):

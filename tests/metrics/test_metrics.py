@@ -101,3 +101,32 @@ def test_depth_metrics_in_chunks_equal_one_piece(monkeypatch, align):
     for k in ("abs_rel", "rmse", "delta1", "scale"):
         assert chunked[k] == pytest.approx(whole[k], rel=1e-12)
     assert chunked["pixels"] == whole["pixels"] == t.size
+
+
+def test_flying_is_the_share_of_pixels_more_than_half_off_after_the_alignment():
+    from panorecon.metrics.depth import FLYING_REL
+
+    truth = np.linspace(1.0, 5.0, 1000).reshape(10, 100)
+    pred = 2.0 * truth  # a global scale: the median alignment removes it
+    pred.ravel()[:7] *= 3.0  # 200 % off
+    pred.ravel()[7:10] *= 0.99 + FLYING_REL  # 49 % off: not flying
+    pred.ravel()[10:13] *= 0.4  # 60 % off
+    m = depth_metrics(pred, truth)
+    assert m["flying"] == pytest.approx(10 / 1000)
+    assert depth_metrics(truth, truth, "none")["flying"] == 0.0
+    assert np.isnan(depth_metrics(np.full((2, 2), np.nan), np.ones((2, 2)))["flying"])
+
+
+def test_point_flying_share_measures_each_point_on_its_ray_from_the_centre():
+    from panorecon.geometry import erp_directions
+    from panorecon.metrics import point_flying_share
+
+    truth = np.full((32, 64), 2.0, np.float32)
+    truth[:4] = np.inf  # sky: no true distance on those rays
+    d = erp_directions(32, 64)[4:].reshape(-1, 3)
+    xyz = d * 2.0 / 3.0  # a cloud a third of the size: scale 3 aligns it
+    xyz[:50] *= 4.0  # 50 points 4x too far
+    share, n = point_flying_share(xyz, truth, 3.0)
+    assert n == len(d) and share == pytest.approx(50 / len(d))
+    up = erp_directions(32, 64)[:2].reshape(-1, 3)
+    assert point_flying_share(up, truth) == (pytest.approx(float("nan"), nan_ok=True), 0)

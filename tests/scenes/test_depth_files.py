@@ -120,3 +120,17 @@ def test_exr_without_openexr_says_what_to_install(tmp_path, monkeypatch):
 def test_exr_channel_choice(tmp_path):
     _write_exr(tmp_path / "one.exr", np.full((4, 8), 3.0), channel="whatever")
     assert (read_erp_depth(tmp_path / "one.exr") == 3).all()
+
+
+@pytest.mark.parametrize("s", [1e-3, 1e3], ids=["at_scale_1e-3", "at_scale_1e3"])
+def test_a_depth_at_an_extreme_but_computable_scale_is_read(tmp_path, s):
+    np.save(tmp_path / "d.npy", _distance() * s)
+    np.testing.assert_allclose(read_erp_depth(tmp_path / "d.npy"), _distance() * s, rtol=1e-6)
+
+
+@pytest.mark.parametrize("s", [1e-9, 1e8], ids=["at_scale_1e-9", "at_scale_1e8"])  # >= 1e9 is an invalid code
+def test_a_depth_too_small_or_too_large_for_float32_is_one_error_naming_its_median(tmp_path, s):
+    np.save(tmp_path / "d.npy", _distance() * s)
+    with pytest.raises(PanoreconInputError, match=r"d\.npy: median distance [0-9.e+-]+ m is outside") as e:
+        read_erp_depth(tmp_path / "d.npy")
+    assert f"{float(np.median(_distance() * s)):.3g}" in str(e.value) and "--depth-scale" in str(e.value)

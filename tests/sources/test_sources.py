@@ -102,7 +102,9 @@ def test_sky_gives_no_points():
     plaza = load_scene("city-plaza", 128)
     pc, rep = run_source(plaza, "fibonacci", "sim:clean")
     ground = ~plaza.sky
-    assert 0.9 * ground.sum() <= len(pc) <= ground.sum()  # one point per seen non-sky pixel, none for the sky
+    # one point per seen non-sky pixel, none for the sky; at 32 px views the pixels at depth edges that no view
+    # sees off an edge (fusion.warp.depth_edge_pixels) are 10 % of the ground: no point there, no flying point
+    assert 0.85 * ground.sum() <= len(pc) <= ground.sum() and rep["depth"]["flying"] < 1e-3
     # every point lies along a non-sky pixel's ray, at most a few times the farthest true distance
     r, c = direction_to_erp_pixel(pc.xyz / np.linalg.norm(pc.xyz, axis=1, keepdims=True), *plaza.sky.shape)
     rows = np.clip(np.rint(r).astype(int), 0, plaza.height - 1)
@@ -136,8 +138,8 @@ def test_metric_samples_are_point_metrics_own_subsamples():
 
 def test_max_points_thins_the_cloud_evenly_and_reports_the_density():
     scene = load_scene("bedroom", 128)
-    pc, report = run_source(scene, "fibonacci", "sim:clean", 6, None, max_points=2000)
-    assert 0.97 * 2000 <= len(pc) <= 2000 == report["thinning"]["max_points"]
+    pc, report = run_source(scene, "fibonacci", "sim:clean", 6, None, max_points=1500)
+    assert 0.97 * 1500 <= len(pc) <= 1500 == report["thinning"]["max_points"]
     assert report["thinning"]["points"] == len(pc) == report["points"]["count"]
     assert report["thinning"]["spacing_deg"] > 0 and "thinning" in report["seconds"]
     full, rep_full = run_source(scene, "fibonacci", "sim:clean", 6, None)

@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -39,6 +41,57 @@ class TestModel:
         assert torch.isfinite(GaussianModel.from_point_cloud(pc).log_scales).all()
         with pytest.raises(ValueError, match="empty"):
             GaussianModel.from_point_cloud(PointCloud(np.zeros((0, 3)), np.zeros((0, 3))))
+
+    @settings(max_examples=12, deadline=None)
+    @given(st.floats(-3, 3), st.integers(0, 2**31 - 1))
+    def test_a_scaled_model_renders_the_same_picture_from_the_scaled_camera(self, log_s, seed):
+        """Scale-freeness of the render: the model of a cloud s times larger, seen from a camera s times farther
+        from the origin, gives the same image (its near plane, ``near_plane_for``, scales with it; a fixed
+        0.01 m plane would cull a whole scene at s = 1e-3)."""
+        s = 10.0**log_s
+        rng = np.random.default_rng(seed)
+        pc = grid_cloud(n=5)
+        xyz, rgb = pc.xyz + rng.normal(0, 0.02, pc.xyz.shape), rng.random((len(pc), 3))
+        m = GaussianModel.from_point_cloud(PointCloud(xyz, rgb), sh_degree=0)
+        ms = GaussianModel.from_point_cloud(PointCloud(xyz * s, rgb), sh_degree=0)
+        assert ms.near_plane == pytest.approx(s * m.near_plane, rel=1e-4)
+        K = torch.tensor(intrinsics_from_fov(32, 32, 60), dtype=torch.float32)[None]
+        eye, target = np.array([0.3, 0.1, -0.05]), np.array([2.2, 0.0, 0.0])
+        backends = ["torch"] + (["cpu"] if cpu_backend.available() else [])
+        for backend in backends:
+            imgs = []
+            for g, k in ((m, 1.0), (ms, s)):
+                V = torch.tensor(look_at_viewmat(eye * k, target * k), dtype=torch.float32)[None]
+                imgs.append(
+                    rasterize(
+                        g.means,
+                        g.quats,
+                        g.scales(),
+                        g.opacities(),
+                        g.sh(),
+                        V,
+                        K,
+                        32,
+                        32,
+                        sh_degree=0,
+                        near_plane=g.near_plane,
+                        backend=backend,
+                    )[1]
+                )
+            assert imgs[0].max() > 0.5  # the cloud is in the picture
+            torch.testing.assert_close(imgs[1], imgs[0], atol=2e-4, rtol=0)
+
+    @settings(max_examples=30, deadline=None)
+    @given(st.floats(-8, 8), st.floats(0, 4), st.integers(0, 2**31 - 1))
+    def test_near_plane_is_finite_and_positive_on_extreme_clouds(self, log_centre, log_spread, seed):
+        from panorecon.splat.model import near_plane_for
+
+        rng = np.random.default_rng(seed)
+        r = 10.0 ** (log_centre + log_spread * rng.uniform(-1, 1, 200))
+        d = rng.normal(size=(200, 3))
+        means = torch.tensor(d / np.linalg.norm(d, axis=1, keepdims=True) * r[:, None], dtype=torch.float32)
+        near = near_plane_for(means)
+        assert math.isfinite(near) and 0 < near <= 0.01 * float(torch.linalg.vector_norm(means, dim=1).max())
 
 
 class TestPly:

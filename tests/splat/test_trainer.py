@@ -516,3 +516,44 @@ def test_the_depth_weight_pulls_the_rendered_depth_toward_the_teachers(setup, tm
 
     without, strong = correlation(0.0), correlation(2.0)
     assert strong > without + 0.05, (without, strong)
+
+
+@pytest.fixture(scope="module")
+def psnr_at_scale(tmp_path_factory):
+    """Pseudo-label PSNR of a short training on bedroom (128 px) given at its true size times ``s``: the true
+    distance scaled (``scenes.stress.scaled``, same teacher errors), the same fusion and training."""
+    from panorecon.scenes.stress import scaled
+
+    base = load_scene("bedroom", 128)
+    teacher = get_teacher("sim:clean")
+    done = {}
+
+    def run(s: float) -> float:
+        if s not in done:
+            scene = scaled(base, s)
+            pc, rep = run_source(scene, "fibonacci", "sim:clean")
+            depth_fn = lambda cams: [v.depth for v in teacher.predict_views(scene, cams)]  # noqa: E731
+            out = tmp_path_factory.mktemp(f"scale{s:g}")
+            m = train(scene, pc.subset(slice(None, None, 4)), cfg(heldout=0, iters=60), out, depth_fn, progress=False)
+            done[s] = (m["pseudo-label"]["psnr"], rep["depth"]["abs_rel"])
+        return done[s]
+
+    return run
+
+
+@pytest.mark.parametrize("s", [1e-3, 1e3], ids=["at_scale_1e-3", "at_scale_1e3"])
+def test_training_gives_the_same_psnr_and_depth_error(psnr_at_scale, s):
+    """A 5 mm room (every surface inside a fixed 0.01 m near plane) or a 5 km one trains as the 5 m room does."""
+    psnr, abs_rel = psnr_at_scale(s)
+    psnr1, abs_rel1 = psnr_at_scale(1.0)
+    assert psnr1 > 15 and abs(psnr - psnr1) < 0.3
+    assert abs_rel == pytest.approx(abs_rel1, rel=1e-3, abs=1e-5)
+
+
+@pytest.mark.parametrize("s", [1e-9, 1e9], ids=["at_scale_1e-9", "at_scale_1e9"])
+def test_a_scene_too_small_or_too_large_for_float32_is_refused_naming_its_median(setup, tmp_path, s):
+    scene, pc, depth_fn = setup
+    far = type(pc)(pc.xyz * s, pc.rgb)
+    with pytest.raises(PanoreconInputError, match=r"median distance .* m is outside the 0.0001 to 1e\+06 m"):
+        train(scene, far, cfg(), tmp_path / "x", depth_fn, progress=False)
+    assert not (tmp_path / "x").exists()
