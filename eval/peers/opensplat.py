@@ -179,7 +179,9 @@ def main(argv=None) -> dict:
         run["status"] = run_status(run)
         result["opensplat_runs"][fmt] = run
     failed = {fmt: run["status"] for fmt, run in result["opensplat_runs"].items() if run["status"] != "ok"}
-    result["status"] = "ok" if not failed else "failed: " + "; ".join(f"{k}: {v}" for k, v in failed.items())
+    result["status"] = (
+        "ok" if not failed else "failed: " + "; ".join(f"{k}: {v.removeprefix('failed: ')}" for k, v in failed.items())
+    )
 
     cfg = TrainConfig(
         iters=args.iters,
