@@ -28,6 +28,7 @@ from .initial import (
     disocclusion_fill,
     points_for_resolution,
     sky_environment,
+    thin_by_detail,
     thin_cloud,
     view_background,
 )
@@ -167,6 +168,20 @@ class TrainConfig:
         1.0,
         "label pixels per initial point over the sphere: the source's cloud is "
         "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)",
+    )
+    init_detail: float = opt(
+        0.0,
+        "colour tolerance of the content-adaptive initial cloud: where the colour's standard deviation (in [0, 1]) "
+        "and the relative distance from a plane (init_detail_depth) stay within it over a region, that region keeps "
+        "fewer, larger Gaussians (down to one per 16 x 16 of the label-pixel spacing; splat/initial.thin_by_detail); "
+        "0: the label resolution everywhere",
+        check=C.float_in(0.0, 1.0, "colour standard deviation"),
+    )
+    init_detail_depth: float = opt(
+        0.01,
+        "geometric tolerance of init_detail: RMS distance of a region's points from their plane over their mean "
+        "distance",
+        check=C.float_in(0.0, 1.0, "relative distance"),
     )
     seed: int = opt(0, "random seed", check=C.SEED)
 
@@ -381,6 +396,45 @@ def _aligned_scores(kept: list, net, shortfall: str | None) -> dict:
     return out
 
 
+METRICS_MEANING = {
+    "skipped": "stages this run left out because the scene or the settings do not need them: stage -> why. sky: "
+    "no sky environment behind the Gaussians; disocclusion_fill: no points behind depth edges; depth_loss: no "
+    "Pearson depth term; held-out: no held-out views; depth_metrics: no depth or point metrics against a truth "
+    "(the points stage's report reads n/a)",
+    "initial_thinning": "the initial cloud after thinning to the label resolution (splat/initial.thin_by_detail): "
+    "points kept, and per level (0: the label-pixel spacing; l: sites 2^l times further apart, kept where colour "
+    "and geometry are smooth within init_detail and init_detail_depth)",
+}
+
+
+def skipped_stages(scene, cfg: TrainConfig, env, fill_points: int, heldout: list, has_teacher: bool) -> dict:
+    """{stage: why} for each stage ``train`` left out (``METRICS_MEANING['skipped']``): ``env`` the sky environment
+    (None: none), ``fill_points`` the disocclusion fill's size, ``heldout`` the held-out views, ``has_teacher``
+    whether the labels carry teacher depth."""
+    skipped = {}
+    if cfg.sky == "none":
+        skipped["sky"] = "sky = none"
+    elif env is None:
+        skipped["sky"] = "the panorama has no sky pixel"
+    if not cfg.disocclusion_fill_deg:
+        skipped["disocclusion_fill"] = "disocclusion_fill_deg = 0"
+    elif not fill_points:
+        skipped["disocclusion_fill"] = "the cloud has no depth edge as seen from the centre"
+    if not has_teacher:
+        skipped["depth_loss"] = "no teacher depth for the labels"
+    elif not cfg.w_depth:
+        skipped["depth_loss"] = "w_depth = 0"
+    if not heldout:
+        skipped["held-out"] = (
+            "heldout = 0"
+            if not cfg.heldout
+            else scene.meta.get("heldout_note", "n/a: scene has no ground-truth world").removeprefix("n/a: ")
+        )
+    if not scene.has_ground_truth:
+        skipped["depth_metrics"] = f"scene {scene.name!r} has no true depth"
+    return skipped
+
+
 def best_heldout(history: list[dict], reason: str | None = None) -> dict | str:
     """The history sample with the highest held-out PSNR: its iteration, training seconds, Gaussians and PSNR
     (what a run's quality-against-time reads as), or 'n/a: <reason>' (``reason`` if given) when none has one."""
@@ -479,12 +533,14 @@ def train(
                 PointCloud(np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])),
                 None,
             )
+    thinning = {"points": len(point_cloud), "points_per_level": {}}
     if cfg.init_pixels_per_point:
         n_points = points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point)
-        if fill is not None and len(point_cloud) > n_points:  # the late fill thinned as the cloud is
-            fill = thin_cloud(fill, max(1, round(len(fill) * n_points / len(point_cloud))), cfg.seed)
+        before = len(point_cloud)
+        point_cloud, thinning = thin_by_detail(point_cloud, n_points, cfg.init_detail, cfg.init_detail_depth, cfg.seed)
+        if fill is not None and len(point_cloud) < before:  # the late fill thinned as the cloud was
+            fill = thin_cloud(fill, max(1, round(len(fill) * len(point_cloud) / before)), cfg.seed)
             fill_points = len(fill)
-        point_cloud = thin_cloud(point_cloud, n_points, cfg.seed)
     model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
     fill_step = fill_step if fill is not None else -1
     late_fill = (
@@ -705,6 +761,9 @@ def train(
         heldout_best=best_heldout(history, heldout_na),
         heldout_plateau=heldout_plateau(history, heldout_na),
         heldout_scale=heldout_scale,
+        initial_thinning=thinning,
+        skipped=skipped_stages(scene, cfg, env, fill_points, heldout, labels[0].depth is not None),
+        meaning=METRICS_MEANING,
         config=dataclasses.asdict(cfg),
     )
     write_json(out / "metrics.json", metrics)
