@@ -331,6 +331,7 @@ def main(argv=None) -> dict:
     if bad:
         ap.error(f"--cases {','.join(bad)}: unknown; expected some of {', '.join(known)}")
     sources = tuple(s for s in args.sources.split(",") if s) or (("fibonacci", "erp-direct") if args.quick else SOURCES)
+    env = environment()  # the code that runs, recorded before it runs
     width = 64 if args.quick else args.width
     train = {"iters": 5 if args.quick else args.train_iters, "res": 16 if args.quick else 32, "labels": 40}
     rows = []
@@ -349,7 +350,7 @@ def main(argv=None) -> dict:
             Path(tmp).write_text(text)
     result = {
         "benchmark": "stress",
-        **environment(),
+        **env,
         "quick": args.quick,
         "width": width,
         "teacher": TEACHER,

@@ -104,11 +104,12 @@ def site_spread(site: np.ndarray, n_sites: int, xyz: np.ndarray, rgb: np.ndarray
     """Per site of ``n_sites`` (``site`` [N] int64 in [0, n_sites)), over its points ``xyz`` [N, 3] (metres, seen
     from the origin) and ``rgb`` [N, 3] in [0, 1]: ``count`` [S] int64; ``colour_sd`` [S], the largest per-channel
     standard deviation; ``depth_sd`` [S], the relative standard deviation of the points' depth along their rays
-    about the plane that fits them best. A plane seen from the origin has 1/z affine in the gnomonic coordinates
-    of any axis (z along it): with m the site's mean direction, y = 1 / (x . m) is fitted by least squares as
-    a + b u + c v, (u, v) = the point's tangent coordinates over its x . m, and depth_sd = sqrt(residual sum of
-    squares / (count - 3)) / mean y (inf for 3 points or fewer, which any plane fits; NaN for a site without
-    points, or whose points are not all in front of the origin along m). Centred sums in float64."""
+    about the plane that fits them best, and ``normal`` [S, 3] that plane's unit normal. A plane seen from the
+    origin has 1/z affine in the gnomonic coordinates of any axis (z along it): with m the site's mean direction,
+    y = 1 / (x . m) is fitted by least squares as a + b u + c v, (u, v) = the point's tangent coordinates over its
+    x . m, and depth_sd = sqrt(residual sum of squares / (count - 3)) / mean y (inf for 3 points or fewer, which
+    any plane fits; NaN, and a NaN normal, for a site without points, or whose points are not all in front of the
+    origin along m). Centred sums in float64."""
     count = np.bincount(site, minlength=n_sites)
     n = np.maximum(count, 1).astype(np.float64)
 
@@ -136,8 +137,13 @@ def site_spread(site: np.ndarray, n_sites: int, xyz: np.ndarray, rgb: np.ndarray
     ss = np.maximum(syy - np.einsum("si,si->s", coef, g), 0.0) * count  # residual sum of squares
     with np.errstate(divide="ignore", invalid="ignore"):
         depth_sd = np.where(count > 3, np.sqrt(ss / np.maximum(count - 3.0, 1.0)) / mean(y), np.inf)
-    out = {"count": count, "colour_sd": np.sqrt(np.max(colour_var, axis=0)), "depth_sd": depth_sd}
+    # 1/z = (n1 u + n2 v + n_m) / k for the plane n . X = k: the normal is (b, c, intercept) in (e1, e2, m)
+    intercept = mean(y) - coef[:, 0] * mean(u) - coef[:, 1] * mean(v)
+    normal = coef[:, :1] * e1 + coef[:, 1:] * e2 + intercept[:, None] * m
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    out = {"count": count, "colour_sd": np.sqrt(np.max(colour_var, axis=0)), "depth_sd": depth_sd, "normal": normal}
     out["depth_sd"][~ahead] = np.nan
+    out["normal"][~ahead | (count == 0)] = np.nan
     for k in ("colour_sd", "depth_sd"):
         out[k][count == 0] = np.nan
     return out
@@ -157,8 +163,9 @@ def thin_by_detail(
     smooth site takes its points not taken by a coarser level and keeps the one nearest its site's direction. The
     points no level takes are thinned as ``thin_cloud`` does, to ``n_points`` times their share of the cloud's
     cos-latitude weight (all of it when nothing is smooth, so the result is then ``thin_cloud``'s). Levels with
-    fewer than 12 sites are skipped; ``colour_tol`` 0 skips them all (``thin_cloud`` itself). -> (cloud, info:
-    points kept, and per level, 0 the finest)."""
+    fewer than 12 sites are skipped; ``colour_tol`` 0 skips them all (``thin_cloud`` itself). When a level ran,
+    the cloud's ``normals`` are each coarse point's site plane normal (0 for the others), for
+    ``GaussianModel.from_point_cloud``'s discs. -> (cloud, info: points kept, and per level, 0 the finest)."""
     if n_points < 1:
         raise ValueError(f"thin_by_detail: n_points={n_points}: expected at least 1")
     if not (colour_tol >= 0 and depth_tol >= 0):
@@ -168,6 +175,7 @@ def thin_by_detail(
     xyz = pc.xyz.astype(np.float64)
     lon, lat = direction_to_lonlat(xyz)
     taken = np.zeros(len(pc), bool)
+    normals = np.zeros((len(pc), 3), np.float32)  # a coarse point's site plane; 0: none
     keep, per_level = [], {}
     base = min(n_points, len(pc))
     for level in range(levels if colour_tol > 0 else 0, 0, -1):
@@ -186,6 +194,7 @@ def thin_by_detail(
         taken[mine] = True
         kept = mine[nearest_per_site(site[mine], cos[mine], n_sites)]
         keep.append(kept)
+        normals[kept] = spread["normal"][site[kept]]
         per_level[level] = len(kept)
     rest = np.flatnonzero(~taken)
     w = _cos_latitude_weight(pc.xyz)
@@ -194,7 +203,10 @@ def thin_by_detail(
         keep.append(rest[_thin_index(w[rest], n_rest, seed)])
     per_level[0] = len(keep[-1]) if len(rest) and n_rest else 0
     index = np.sort(np.concatenate(keep)) if keep else np.zeros(0, np.int64)
-    return pc.subset(index), {"points": len(index), "points_per_level": per_level}
+    out = pc.subset(index)
+    if per_level.keys() - {0}:  # some level ran: the coarse points carry their plane's normal
+        out.normals = normals[index]
+    return out, {"points": len(index), "points_per_level": per_level}
 
 
 def _erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:

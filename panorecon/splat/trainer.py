@@ -54,6 +54,8 @@ log = logging.getLogger("panorecon.train")
 # throughout (at smaller sizes a coarse step saves little and the half-size targets lose detail; measured effects:
 # docs/benchmarks.md).
 COARSE_MIN_SIZE = 128
+# init_detail's coarse Gaussians start as discs on their region's plane, this thick over their radius
+DISC_THICKNESS = 0.1
 
 
 def _layouts() -> tuple[str, ...]:
@@ -541,7 +543,9 @@ def train(
         if fill is not None and len(point_cloud) < before:  # the late fill thinned as the cloud was
             fill = thin_cloud(fill, max(1, round(len(fill) * len(point_cloud) / before)), cfg.seed)
             fill_points = len(fill)
-    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
+    model = GaussianModel.from_point_cloud(
+        point_cloud, cfg.sh_degree, cfg.init_opacity, disc_thickness=DISC_THICKNESS if cfg.init_detail else None
+    ).to(dev)
     fill_step = fill_step if fill is not None else -1
     late_fill = (
         None if fill is None else GaussianModel.from_point_cloud(fill, cfg.sh_degree, cfg.disocclusion_opacity).to(dev)

@@ -56,8 +56,11 @@ def test_site_spread_equals_the_per_site_reference():
     plane = np.concatenate([rng.random((50, 2)) * 4 - 2, np.zeros((50, 1))], 1) @ [[1, 0, 0.3], [0, 1, -0.5], [0, 0, 1]]
     flat = site_spread(np.zeros(50, np.int64), 1, plane + [0.5, 0.2, 7.0], np.zeros((50, 3)))
     assert flat["depth_sd"][0] < 1e-7 and flat["colour_sd"][0] == 0
+    normal = np.cross([1, 0, 0.3], [0, 1, -0.5])
+    assert abs(flat["normal"][0] @ normal / np.linalg.norm(normal)) == pytest.approx(1, abs=1e-9)
     for k in ref:
         np.testing.assert_allclose(fast[k], ref[k], rtol=1e-7, atol=1e-9, equal_nan=True, err_msg=k)
+    assert np.isnan(fast["normal"][[3, 7]]).all() and np.allclose(np.linalg.norm(fast["normal"][:3], axis=1), 1)
 
 
 def test_without_a_tolerance_it_is_thin_cloud():
@@ -75,6 +78,10 @@ def test_a_textureless_sphere_keeps_few_points_that_still_cover_every_direction(
     n = 20_000
     out, info = thin_by_detail(pc, n, 0.005, 0.01)
     assert len(out) * 50 < n and info["points"] == len(out) and info["points_per_level"][0] == 0
+    # each coarse point carries its region's plane: on a sphere, about the tangent plane (its normal within the
+    # site's angular radius of the kept point's ray)
+    u_out = out.xyz / np.linalg.norm(out.xyz, axis=1, keepdims=True)
+    assert np.abs(np.einsum("nk,nk->n", out.normals, u_out)).min() > 0.95
     # every direction is within the coarsest spacing (16 x that of n sites) of a kept point
     spacing = np.sqrt(4 * np.pi / n) * 16
     u = out.xyz / np.linalg.norm(out.xyz, axis=1, keepdims=True)
