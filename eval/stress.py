@@ -15,10 +15,11 @@ Per case and source (``sources.run_source``, the points stage): AbsRel, delta1 (
 relative error and the share of flying points (more than 50 % off their true distance after the report's one
 median scale), each also WS-weighted (cos-latitude row weights, ``metrics.panorama.erp_row_weights``), points,
 seconds and the process's peak resident MB during the row (VmHWM reset before it, ``io.reset_peak_rss``). Per
-case, the method's source trained for a short budget (``--train-iters`` steps at 32 px, 40 labels, no held-out
-views; ``splat.trainer.train``): pseudo-label PSNR, Gaussians, seconds, peak MB. A case a source cannot run, or
-runs and gets no point from (all sky), is a row with its reason. ``--quick``: four cases at 64 px, two sources,
-5 training steps (seconds; the test's mode). Prints JSON (machine, versions, commit) and a markdown table.
+case, the method's source trained for a short budget (``--train-iters`` steps at ``--train-res`` px, ``--labels``
+labels, no held-out views, ``--init-detail``; ``splat.trainer.train``): pseudo-label PSNR, Gaussians, seconds,
+peak MB. A case a source cannot run, or runs and gets no point from (all sky), is a row with its reason.
+``--quick``: four cases at 64 px, two sources, 5 training steps (seconds; the test's mode). Prints JSON (machine,
+versions, commit) and a markdown table.
 """
 
 from __future__ import annotations
@@ -225,9 +226,10 @@ def points_row(scene, source: str, teacher: str | None) -> dict:
     return row
 
 
-def train_row(scene, teacher: str | None, iters: int, res: int, labels: int) -> dict:
-    """The method's source, then ``iters`` training steps at ``res`` px with ``labels`` labels (the trainer's
-    defaults otherwise, no held-out views): pseudo-label PSNR, Gaussians, seconds, peak MB; or its reason."""
+def train_row(scene, teacher: str | None, iters: int, res: int, labels: int, **settings) -> dict:
+    """The method's source, then ``iters`` training steps at ``res`` px with ``labels`` labels and ``settings``
+    (other TrainConfig fields; the trainer's defaults otherwise, no held-out views): pseudo-label PSNR,
+    Gaussians, seconds, peak MB; or its reason."""
     from panorecon.io import PanoreconInputError, reset_peak_rss, window_peak_rss_mb
     from panorecon.pipeline import teacher_depth_fn
     from panorecon.sources import run_source
@@ -239,7 +241,7 @@ def train_row(scene, teacher: str | None, iters: int, res: int, labels: int) -> 
         pc, _ = run_source(scene, "fibonacci", teacher)
     except PanoreconInputError as e:
         return {"unavailable": str(e)}
-    cfg = TrainConfig(iters=iters, res=res, labels=labels, heldout=0, checkpoint_every=0, history_every=0)
+    cfg = TrainConfig(iters=iters, res=res, labels=labels, heldout=0, checkpoint_every=0, history_every=0, **settings)
     with tempfile.TemporaryDirectory() as tmp:
         m = train(scene, pc, cfg, tmp, teacher_depth_fn(scene, teacher), progress=False)
     return {
@@ -315,6 +317,7 @@ def table(rows: list[dict]) -> str:
 def main(argv=None) -> dict:
     from panorecon.evaluation.environment import emit, environment
     from panorecon.io import atomic_write
+    from panorecon.splat.trainer import TrainConfig
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="four cases at 64 px, two sources, 5 steps (seconds)")
@@ -322,6 +325,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--sources", default="", help=f"comma-separated sources (default: {','.join(SOURCES)})")
     ap.add_argument("--width", type=int, default=512, help="ERP width of the cases without their own")
     ap.add_argument("--train-iters", type=int, default=100)
+    ap.add_argument("--train-res", type=int, default=32, help="label size of the training rows (px)")
+    ap.add_argument("--labels", type=int, default=40, help="pseudo-label views of the training rows")
+    ap.add_argument("--init-detail", type=float, default=None, help="TrainConfig.init_detail (default: its default)")
     ap.add_argument("--out", default=None, help="write the JSON here too")
     ap.add_argument("--table", default=None, help="write the markdown table here")
     args = ap.parse_args(argv)
@@ -333,7 +339,12 @@ def main(argv=None) -> dict:
     sources = tuple(s for s in args.sources.split(",") if s) or (("fibonacci", "erp-direct") if args.quick else SOURCES)
     env = environment()  # the code that runs, recorded before it runs
     width = 64 if args.quick else args.width
-    train = {"iters": 5 if args.quick else args.train_iters, "res": 16 if args.quick else 32, "labels": 40}
+    train = {
+        "iters": 5 if args.quick else args.train_iters,
+        "res": 16 if args.quick else args.train_res,
+        "labels": args.labels,
+        **({} if args.init_detail is None else {"init_detail": args.init_detail}),
+    }
     rows = []
     for name in names:
         case = known[name]
@@ -355,6 +366,7 @@ def main(argv=None) -> dict:
         "width": width,
         "teacher": TEACHER,
         "train_budget": {**train, "heldout": 0, "source": "fibonacci", "config": "TrainConfig defaults otherwise"},
+        "init_detail": TrainConfig(**train).init_detail,
         "flying_threshold": FLYING,
         "rows": rows,
         "table": text,
