@@ -25,6 +25,7 @@ versions, commit) and a markdown table.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
@@ -345,6 +346,22 @@ def main(argv=None) -> dict:
         "labels": args.labels,
         **({} if args.init_detail is None else {"init_detail": args.init_detail}),
     }
+
+    def result(rows: list[dict], complete: bool) -> dict:
+        return {
+            "benchmark": "stress",
+            **env,
+            "complete": complete,
+            "quick": args.quick,
+            "width": width,
+            "teacher": TEACHER,
+            "train_budget": {**train, "heldout": 0, "source": "fibonacci", "config": "TrainConfig defaults otherwise"},
+            "init_detail": TrainConfig(**train).init_detail,
+            "flying_threshold": FLYING,
+            "rows": rows,
+            "table": table(rows),
+        }
+
     rows = []
     for name in names:
         case = known[name]
@@ -355,23 +372,14 @@ def main(argv=None) -> dict:
         row["load_average_before"] = round(load, 2)
         print(f"{name}: done, load {load:.1f}", flush=True, file=sys.stderr)
         rows.append(row)
-    text = table(rows)
+        if args.out and len(rows) < len(names):  # the cases so far, should a long grid be stopped
+            with atomic_write(Path(args.out)) as tmp:
+                Path(tmp).write_text(json.dumps(result(rows, False), indent=2) + "\n")
+    done = result(rows, True)
     if args.table:
         with atomic_write(Path(args.table)) as tmp:
-            Path(tmp).write_text(text)
-    result = {
-        "benchmark": "stress",
-        **env,
-        "quick": args.quick,
-        "width": width,
-        "teacher": TEACHER,
-        "train_budget": {**train, "heldout": 0, "source": "fibonacci", "config": "TrainConfig defaults otherwise"},
-        "init_detail": TrainConfig(**train).init_detail,
-        "flying_threshold": FLYING,
-        "rows": rows,
-        "table": text,
-    }
-    return emit(result, args.out)
+            Path(tmp).write_text(done["table"])
+    return emit(done, args.out)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ spec.loader.exec_module(script)
 def test_quick_mode_gives_every_row_and_its_table(tmp_path):
     out = script.main(["--quick", "--out", str(tmp_path / "s.json"), "--table", str(tmp_path / "t.md")])
     assert json.loads((tmp_path / "s.json").read_text())["rows"] == out["rows"]
-    assert {"machine", "versions", "commit"} <= set(out) and out["quick"] and out["width"] == 64
+    assert {"machine", "versions", "commit"} <= set(out) and out["quick"] and out["complete"] and out["width"] == 64
     assert [r["case"] for r in out["rows"]] == list(script.QUICK_CASES)
     rows = {r["case"]: r for r in out["rows"]}
     for case in ("textureless", "cliff-100", "seam-jump"):
