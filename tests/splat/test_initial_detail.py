@@ -136,3 +136,6 @@ def test_any_cloud_thins_to_a_finite_subset(n, log_scale, spread, grey, want, se
     if len(pc) <= want:
         assert len(out) == len(pc) or not grey or spread < 1  # coarse levels may merge a smooth cloud
     assert {tuple(p) for p in out.xyz} <= {tuple(p) for p in pc.xyz}
+    if out.normals is not None:  # a disc's plane, or 0: never NaN into the model
+        norm = np.linalg.norm(out.normals, axis=1)
+        assert np.isfinite(out.normals).all() and np.all((np.abs(norm - 1) < 1e-5) | (norm == 0))
