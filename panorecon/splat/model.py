@@ -40,18 +40,9 @@ class GaussianModel(nn.Module):
         self.shN = nn.Parameter(shN)
 
     @classmethod
-    def from_point_cloud(
-        cls,
-        pc: PointCloud,
-        sh_degree: int = 3,
-        init_opacity: float = 0.1,
-        min_scale: float = 1e-7,
-        disc_thickness: float | None = None,
-    ):
+    def from_point_cloud(cls, pc: PointCloud, sh_degree: int = 3, init_opacity: float = 0.1, min_scale: float = 1e-7):
         """Isotropic Gaussians at the points: scale = mean distance to the 3 nearest neighbours (at least
-        ``min_scale`` metres, so duplicate points stay finite), colour in the DC band, opacity ``init_opacity``.
-        With ``disc_thickness`` each point with a non-zero finite normal (``pc.normals``) is a disc instead: that
-        scale in its plane, ``disc_thickness`` times it along the normal (local z rotated onto it)."""
+        ``min_scale`` metres, so duplicate points stay finite), colour in the DC band, opacity ``init_opacity``."""
         if len(pc) == 0:
             raise ValueError("GaussianModel.from_point_cloud: the point cloud is empty")
         if not 0 <= sh_degree <= 3:
@@ -63,13 +54,6 @@ class GaussianModel(nn.Module):
         log_s = torch.from_numpy(np.log(scale)).float()[:, None].repeat(1, 3)
         quats = torch.zeros(n, 4)
         quats[:, 0] = 1
-        if disc_thickness is not None and pc.normals is not None:
-            nrm = pc.normals.astype(np.float64)
-            disc = np.isfinite(nrm).all(1) & (np.linalg.norm(np.nan_to_num(nrm), axis=1) > 0.5)
-            nz = nrm[disc] * np.where(nrm[disc, 2:3] < 0, -1.0, 1.0)  # a disc has no side: n_z >= 0
-            q = np.stack([1 + nz[:, 2], -nz[:, 1], nz[:, 0], np.zeros(len(nz))], 1)  # z onto n (w x y z)
-            quats[torch.from_numpy(disc)] = torch.from_numpy(q / np.linalg.norm(q, axis=1, keepdims=True)).float()
-            log_s[torch.from_numpy(disc), 2] += float(np.log(disc_thickness))
         logit = torch.full((n,), float(np.log(init_opacity / (1 - init_opacity))))
         sh0 = ((torch.from_numpy(pc.rgb).float() - 0.5) / C0)[:, None, :]
         shN = torch.zeros(n, (sh_degree + 1) ** 2 - 1, 3)
@@ -92,3 +76,20 @@ class GaussianModel(nn.Module):
     def sh(self) -> torch.Tensor:
         """All SH coefficients [N, (d+1)^2, 3]."""
         return torch.cat([self.sh0, self.shN], 1)
+
+
+def flatten_to_discs(model: GaussianModel, normals: np.ndarray, thickness: float) -> None:
+    """Make each Gaussian whose row of ``normals`` [N, 3] is a finite non-zero vector a disc on that normal's
+    plane, in place: its local z rotated onto the normal (quaternion from the identity) and its z scale
+    ``thickness`` times its x scale; the other Gaussians are left as they are. For a freshly built isotropic
+    model (``from_point_cloud``), before any optimizer holds its parameters."""
+    nrm = np.asarray(normals, np.float64)
+    if nrm.shape != (len(model), 3):
+        raise ValueError(f"flatten_to_discs: normals {nrm.shape} for {len(model)} Gaussians; expected [N, 3]")
+    disc = np.isfinite(nrm).all(1) & (np.linalg.norm(np.nan_to_num(nrm), axis=1) > 0.5)
+    nz = nrm[disc] * np.where(nrm[disc, 2:3] < 0, -1.0, 1.0)  # a disc has no side: n_z >= 0
+    q = np.stack([1 + nz[:, 2], -nz[:, 1], nz[:, 0], np.zeros(len(nz))], 1)  # z onto n (w x y z)
+    mask = torch.from_numpy(disc).to(model.quats.device)
+    with torch.no_grad():
+        model.quats[mask] = torch.from_numpy(q / np.linalg.norm(q, axis=1, keepdims=True)).to(model.quats)
+        model.log_scales[mask, 2] = model.log_scales[mask, 0] + float(np.log(thickness))

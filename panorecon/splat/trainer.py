@@ -42,7 +42,7 @@ from .labels import (
     make_pseudo_labels,
 )
 from .losses import ssim, total_loss
-from .model import PARAM_NAMES, GaussianModel
+from .model import PARAM_NAMES, GaussianModel, flatten_to_discs
 from .ply import save_ply
 from .rasterize import BACKENDS, rasterize, resolve_backend
 from .strategy import STRATEGIES, edit_parameters
@@ -172,11 +172,11 @@ class TrainConfig:
         "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)",
     )
     init_detail: float = opt(
-        0.0,
+        0.005,
         "colour tolerance of the content-adaptive initial cloud: where the colour's standard deviation (in [0, 1]) "
         "and the relative distance from a plane (init_detail_depth) stay within it over a region, that region keeps "
         "fewer, larger Gaussians (down to one per 16 x 16 of the label-pixel spacing; splat/initial.thin_by_detail); "
-        "0: the label resolution everywhere",
+        "0: the label resolution everywhere (the default's paired held-out difference: docs/benchmarks.md)",
         check=C.float_in(0.0, 1.0, "colour standard deviation"),
     )
     init_detail_depth: float = opt(
@@ -543,9 +543,10 @@ def train(
         if fill is not None and len(point_cloud) < before:  # the late fill thinned as the cloud was
             fill = thin_cloud(fill, max(1, round(len(fill) * len(point_cloud) / before)), cfg.seed)
             fill_points = len(fill)
-    model = GaussianModel.from_point_cloud(
-        point_cloud, cfg.sh_degree, cfg.init_opacity, disc_thickness=DISC_THICKNESS if cfg.init_detail else None
-    ).to(dev)
+    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity)
+    if cfg.init_detail and point_cloud.normals is not None:  # thin_by_detail's coarse points: discs on their plane
+        flatten_to_discs(model, point_cloud.normals, DISC_THICKNESS)
+    model = model.to(dev)
     fill_step = fill_step if fill is not None else -1
     late_fill = (
         None if fill is None else GaussianModel.from_point_cloud(fill, cfg.sh_degree, cfg.disocclusion_opacity).to(dev)

@@ -323,6 +323,7 @@ def test_nearest_neighbour_scale_equals_brute_force():
 
 
 def test_points_with_a_normal_start_as_discs_on_their_plane():
+    from panorecon.splat.model import flatten_to_discs
     from panorecon.splat.rasterize import quat_to_rotmat
 
     rng = np.random.default_rng(0)
@@ -334,11 +335,13 @@ def test_points_with_a_normal_start_as_discs_on_their_plane():
     normals[5] = np.nan
     pc = PointCloud(rng.normal(size=(6, 3)) * 5, rng.random((6, 3)), normals=normals)
     iso = GaussianModel.from_point_cloud(pc, 0)
-    disc = GaussianModel.from_point_cloud(pc, 0, disc_thickness=0.1)
+    disc = GaussianModel.from_point_cloud(pc, 0)
+    flatten_to_discs(disc, normals, 0.1)
     R = quat_to_rotmat(disc.quats.detach() / disc.quats.detach().norm(dim=-1, keepdim=True))
     z = R[..., 2].numpy()  # the local axis the thin scale is along
     assert np.allclose(np.abs(np.einsum("nk,nk->n", z[:4], n[:4])), 1, atol=1e-6)
     s_iso, s_disc = iso.scales().detach(), disc.scales().detach()
     assert torch.allclose(s_disc[:4, :2], s_iso[:4, :2]) and torch.allclose(s_disc[:4, 2], 0.1 * s_iso[:4, 2])
     assert torch.equal(disc.quats[4:], iso.quats[4:]) and torch.equal(s_disc[4:], s_iso[4:])
-    assert torch.equal(GaussianModel.from_point_cloud(pc, 0).quats, iso.quats)  # no thickness: no discs
+    with pytest.raises(ValueError, match="normals"):
+        flatten_to_discs(disc, normals[:3], 0.1)
