@@ -199,9 +199,7 @@ def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites
     return nearest_per_site(site, cos, n_sites)
 
 
-def fibonacci_site_of(
-    xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites: int
-) -> tuple[np.ndarray, np.ndarray]:
+def fibonacci_site_of(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites: int) -> tuple[np.ndarray, np.ndarray]:
     """The Fibonacci site (of ``n_sites``, ``fibonacci_directions``) each point [N, 3] belongs to, given its
     direction's ``lon``, ``lat`` [N] (radians): the site nearest the centre of the point's cell of an ERP lookup
     grid (g x 2g cells, g = ceil(sqrt(pi n_sites / 2)): cells half a site's area at the equator, smaller
