@@ -269,7 +269,10 @@ def run_case(case: Case, width: int, sources: tuple[str, ...], train: dict) -> d
         out["points"] = {s: {"unavailable": reason} for s in sources}
         out["train"] = {"unavailable": reason}
         return out
-    out["points"] = {s: points_row(scene, s, teacher) for s in sources}
+    out["points"] = {}
+    for s in sources:  # one line each, so a run the system stops (memory) says how far it got
+        out["points"][s] = points_row(scene, s, teacher)
+        print(f"{case.name} {s}: {out['points'][s]}", flush=True, file=sys.stderr)
     out["train"] = train_row(scene, teacher, **train)
     return out
 
