@@ -596,10 +596,11 @@ def pareto_plot(
     higher_is_better: bool = False,
     title: str = "",
     label_col: str = "label",
+    xlabel: str = "seconds",
 ) -> None:
-    """Two panels of y against x (log seconds): every run coloured by scene and labelled (left), and the
-    per-label means over scenes with their Pareto front (right), with 95 % error bars where ``mean`` has
-    ``<x>_hw`` / ``<y>_hw`` half-widths (``average_table``)."""
+    """Two panels of y against x (log ``xlabel``, seconds by default): every run coloured by scene and labelled
+    (left), and the per-label means over scenes with their Pareto front (right), with 95 % error bars where
+    ``mean`` has ``<x>_hw`` / ``<y>_hw`` half-widths (``average_table``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -611,7 +612,7 @@ def pareto_plot(
     for k, (scene, g) in enumerate(per_run.groupby("scene", sort=False) if "scene" in per_run else [("runs", per_run)]):
         ax_runs.scatter(g[x], g[y], s=18, color=f"C{k}", label=str(scene))
         run_labels += [(r[x], r[y], str(r[label_col]), f"C{k}") for _, r in g.iterrows()]
-    ax_runs.set(xlabel=f"{x} (seconds, log)", ylabel=ylabel, xscale="log", title="every run, by scene")
+    ax_runs.set(xlabel=f"{x} ({xlabel}, log)", ylabel=ylabel, xscale="log", title="every run, by scene")
     ax_runs.legend(fontsize=7)
     sign = -1 if higher_is_better else 1
     pts = list(zip(mean[x], sign * mean[y]))
@@ -634,7 +635,7 @@ def pareto_plot(
     fp = sorted((mean[x].iloc[i], mean[y].iloc[i]) for i in front)
     ax_mean.plot([p[0] for p in fp], [p[1] for p in fp], "C3--", lw=1.2, label="Pareto front (red)")
     ax_mean.set(
-        xlabel=f"{x} (seconds, log; mean over scenes)",
+        xlabel=f"{x} ({xlabel}, log; mean over scenes)",
         ylabel=f"{ylabel}, mean over scenes",
         xscale="log",
         title="averaged"

@@ -22,7 +22,14 @@ from .layouts import (
     latlong_directions,
     make_layout,
 )
-from .pointcloud import PointCloud, back_project_erp, erp_point_cloud, thin_on_sphere
+from .pointcloud import (
+    PointCloud,
+    back_project_erp,
+    erp_point_cloud,
+    fibonacci_site_of,
+    nearest_per_site,
+    thin_on_sphere,
+)
 from .remap import erp_to_perspective, pad_erp, perspective_to_erp, sample_erp
 from .sphere import (
     direction_to_erp_pixel,
@@ -52,6 +59,8 @@ __all__ = [
     "erp_point_cloud",
     "back_project_erp",
     "thin_on_sphere",
+    "fibonacci_site_of",
+    "nearest_per_site",
     "erp_to_perspective",
     "fibonacci_directions",
     "icosahedron_face_centres",

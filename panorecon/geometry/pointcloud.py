@@ -193,10 +193,18 @@ def thin_on_sphere(pc: PointCloud, n_points: int) -> tuple[PointCloud, dict]:
 
 
 def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites: int) -> np.ndarray:
-    """Index of the point nearest (largest cosine) each of ``n_sites`` Fibonacci sites among the points whose
-    cell of an ERP lookup grid (g x 2g cells, g = ceil(sqrt(pi n_sites / 2)): cells half a site's area at the
-    equator, smaller elsewhere) has that site as the site nearest its centre (a KD-tree over the sites, queried
-    once per cell, not per point); sites no point reaches give none. [<= n_sites] int64, in site order."""
+    """Index of the point nearest (largest cosine) each of ``n_sites`` Fibonacci sites among the points that
+    ``fibonacci_site_of`` gives that site; sites no point reaches give none. [<= n_sites] int64, in site order."""
+    site, cos = fibonacci_site_of(xyz, lon, lat, n_sites)
+    return nearest_per_site(site, cos, n_sites)
+
+
+def fibonacci_site_of(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites: int) -> tuple[np.ndarray, np.ndarray]:
+    """The Fibonacci site (of ``n_sites``, ``fibonacci_directions``) each point [N, 3] belongs to, given its
+    direction's ``lon``, ``lat`` [N] (radians): the site nearest the centre of the point's cell of an ERP lookup
+    grid (g x 2g cells, g = ceil(sqrt(pi n_sites / 2)): cells half a site's area at the equator, smaller
+    elsewhere; a KD-tree over the sites, queried once per cell, not per point), and the cosine between the point's
+    direction and its site's. -> (site [N] int64, cos [N] float64)."""
     from scipy.spatial import cKDTree
 
     g = int(np.ceil(np.sqrt(np.pi * n_sites / 2)))
@@ -212,10 +220,10 @@ def _nearest_to_sites(xyz: np.ndarray, lon: np.ndarray, lat: np.ndarray, n_sites
         s = site[i : i + CHUNK] = site_of_cell[row * 2 * g + col]
         d = xyz[i : i + CHUNK].astype(np.float64)
         cos[i : i + CHUNK] = np.einsum("nk,nk->n", d, site_dirs[s]) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
-    return _nearest_per_site(site, cos, n_sites)
+    return site, cos
 
 
-def _nearest_per_site(site: np.ndarray, cos: np.ndarray, n_sites: int) -> np.ndarray:
+def nearest_per_site(site: np.ndarray, cos: np.ndarray, n_sites: int) -> np.ndarray:
     """For each site that some point has (``site`` [N] in [0, n_sites)), the index of its point of largest ``cos``
     [N] (ties: the lowest index), in increasing site order. O(N): a per-site maximum, then the first point that
     attains it (the argsort by the float64 key site * 4 + (1 - cos) it replaced was 19x slower at 33.5M points and

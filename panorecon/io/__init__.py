@@ -12,7 +12,7 @@ from .files import (
     write_image,
     write_json,
 )
-from .process import peak_rss_mb
+from .process import peak_rss_mb, reset_peak_rss, window_peak_rss_mb
 
 __all__ = [
     "atomic_write",
@@ -26,4 +26,6 @@ __all__ = [
     "write_json",
     "PanoreconInputError",
     "peak_rss_mb",
+    "reset_peak_rss",
+    "window_peak_rss_mb",
 ]

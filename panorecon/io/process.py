@@ -8,3 +8,28 @@ import resource
 def peak_rss_mb() -> float:
     """Peak resident memory of this process so far (MB; Linux reports ru_maxrss in KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def reset_peak_rss() -> bool:
+    """Start a new peak-memory window for ``window_peak_rss_mb`` (Linux: ``5`` written to /proc/self/clear_refs
+    resets VmHWM to the current RSS); False where the system does not allow it (the window then is the process's
+    life so far)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def window_peak_rss_mb() -> float:
+    """Peak resident memory (MB) since the last ``reset_peak_rss`` (VmHWM of /proc/self/status); without /proc,
+    the process's peak so far (``peak_rss_mb``)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return peak_rss_mb()

@@ -58,6 +58,23 @@ def points_for_resolution(res: int, fov_deg: float, pixels_per_point: float) -> 
     return max(1, int(round(4 * math.pi / pixel_sr / pixels_per_point)))
 
 
+def _cos_latitude_weight(xyz: np.ndarray) -> np.ndarray:
+    """[N] float64: cos(latitude) of each point's direction from the origin, floored at 0.02 (1 at the origin)."""
+    xyz = xyz.astype(np.float64)
+    r = np.linalg.norm(xyz, axis=1)
+    return np.maximum(np.divide(np.hypot(xyz[:, 0], xyz[:, 1]), r, out=np.ones_like(r), where=r > 0), 0.02)
+
+
+def _thin_index(w: np.ndarray, n_points: int, seed: int) -> np.ndarray:
+    """Sorted indices of ``n_points`` of len(w) items drawn without replacement with weights ``w`` [N] > 0, by the
+    largest u^(1/w) keys (Efraimidis-Spirakis); all of them when there are at most ``n_points``."""
+    if len(w) <= n_points:
+        return np.arange(len(w))
+    u = np.random.default_rng(seed).random(len(w))
+    keys = np.log(np.maximum(u, 1e-300)) / w  # log of u^(1/w): same order, no underflow
+    return np.sort(np.argpartition(-keys, n_points - 1)[:n_points])
+
+
 def thin_cloud(pc: PointCloud, n_points: int, seed: int = 0) -> PointCloud:
     """At most ``n_points`` of ``pc``, drawn without replacement with weight cos(latitude) of each point's
     direction from the origin (the panorama centre), so a cloud back-projected from ERP pixels (whose solid
@@ -68,13 +85,128 @@ def thin_cloud(pc: PointCloud, n_points: int, seed: int = 0) -> PointCloud:
         raise ValueError(f"thin_cloud: n_points={n_points}: expected at least 1")
     if len(pc) <= n_points:
         return pc
+    return pc.subset(_thin_index(_cos_latitude_weight(pc.xyz), n_points, seed))
+
+
+DETAIL_LEVELS = 4  # coarsest detail-thinning level: sites 4^4 = 256 times sparser (16 times the spacing)
+DETAIL_MIN_POINTS = 6  # a site with fewer points is never called smooth (a plane through 3 fits any noise)
+
+
+def _tangent_axes(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit axes [S, 3] orthogonal to the unit directions ``m`` [S, 3] and to each other."""
+    helper = np.where(np.abs(m[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    e1 = np.cross(m, helper)
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)  # 0 for a zero m (an empty site)
+    return e1, np.cross(m, e1)
+
+
+def site_spread(site: np.ndarray, n_sites: int, xyz: np.ndarray, rgb: np.ndarray) -> dict[str, np.ndarray]:
+    """Per site of ``n_sites`` (``site`` [N] int64 in [0, n_sites)), over its points ``xyz`` [N, 3] (metres, seen
+    from the origin) and ``rgb`` [N, 3] in [0, 1]: ``count`` [S] int64; ``colour_sd`` [S], the largest per-channel
+    standard deviation; ``depth_sd`` [S], the relative standard deviation of the points' depth along their rays
+    about the plane that fits them best, and ``normal`` [S, 3] that plane's unit normal. A plane seen from the
+    origin has 1/z affine in the gnomonic coordinates of any axis (z along it): with m the site's mean direction,
+    y = 1 / (x . m) is fitted by least squares as a + b u + c v, (u, v) = the point's tangent coordinates over its
+    x . m, and depth_sd = sqrt(residual sum of squares / (count - 3)) / mean y (inf for 3 points or fewer, which
+    any plane fits; NaN, and a NaN normal, for a site without points, or whose points are not all in front of the
+    origin along m). Centred sums in float64."""
+    count = np.bincount(site, minlength=n_sites)
+    n = np.maximum(count, 1).astype(np.float64)
+
+    def mean(v):
+        return np.bincount(site, v, minlength=n_sites) / n
+
+    x = xyz.astype(np.float64)
+    c = rgb.astype(np.float64)
+    colour_var = [mean((c[:, k] - mean(c[:, k])[site]) ** 2) for k in range(3)]
+    r = np.linalg.norm(x, axis=1)
+    d = x / np.maximum(r, 1e-300)[:, None]
+    m = np.stack([mean(d[:, k]) for k in range(3)], 1)
+    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
+    e1, e2 = _tangent_axes(m)
+    z = np.einsum("nk,nk->n", x, m[site])
+    ahead = np.bincount(site, z <= 0, minlength=n_sites) == 0  # every point in front of the origin along m
+    zs = np.where(z > 0, z, 1.0)
+    u, v, y = np.einsum("nk,nk->n", x, e1[site]) / zs, np.einsum("nk,nk->n", x, e2[site]) / zs, 1.0 / zs
+    uc, vc, yc = u - mean(u)[site], v - mean(v)[site], y - mean(y)[site]
+    suu, suv, svv = mean(uc * uc), mean(uc * vc), mean(vc * vc)
+    suy, svy, syy = mean(uc * yc), mean(vc * yc), mean(yc * yc)
+    G = np.stack([np.stack([suu, suv], -1), np.stack([suv, svv], -1)], -2)
+    g = np.stack([suy, svy], -1)
+    coef = np.einsum("sij,sj->si", np.linalg.pinv(G, rcond=1e-10, hermitian=True), g)
+    ss = np.maximum(syy - np.einsum("si,si->s", coef, g), 0.0) * count  # residual sum of squares
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth_sd = np.where(count > 3, np.sqrt(ss / np.maximum(count - 3.0, 1.0)) / mean(y), np.inf)
+    # 1/z = (n1 u + n2 v + n_m) / k for the plane n . X = k: the normal is (b, c, intercept) in (e1, e2, m)
+    intercept = mean(y) - coef[:, 0] * mean(u) - coef[:, 1] * mean(v)
+    normal = coef[:, :1] * e1 + coef[:, 1:] * e2 + intercept[:, None] * m
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    out = {"count": count, "colour_sd": np.sqrt(np.max(colour_var, axis=0)), "depth_sd": depth_sd, "normal": normal}
+    out["depth_sd"][~ahead] = np.nan
+    out["normal"][~ahead | (count == 0)] = np.nan
+    for k in ("colour_sd", "depth_sd"):
+        out[k][count == 0] = np.nan
+    return out
+
+
+def thin_by_detail(
+    pc: PointCloud, n_points: int, colour_tol: float, depth_tol: float, seed: int = 0, levels: int = DETAIL_LEVELS
+) -> tuple[PointCloud, dict]:
+    """``thin_cloud`` where the scene needs its density, fewer points where it does not: a region whose colour and
+    geometry are smooth keeps one point per site of a sparser Fibonacci lattice over the directions from the
+    origin, so the Gaussians made from them (3-NN scales) come out fewer and larger.
+
+    Level l (``levels`` down to 1) has n / 4^l sites, n = min(``n_points``, len(pc)) (a spacing 2^l times the
+    finest one); a site is smooth when at least DETAIL_MIN_POINTS points fall in it, their colours' largest
+    per-channel standard deviation is at most ``colour_tol`` (in [0, 1]) and their depth's relative standard
+    deviation about their best plane at most ``depth_tol`` (``site_spread``). From the coarsest level down, each
+    smooth site takes its points not taken by a coarser level and keeps the one nearest its site's direction. The
+    points no level takes are thinned as ``thin_cloud`` does, to ``n_points`` times their share of the cloud's
+    cos-latitude weight (all of it when nothing is smooth, so the result is then ``thin_cloud``'s). Levels with
+    fewer than 12 sites are skipped; ``colour_tol`` 0 skips them all (``thin_cloud`` itself). When a level ran,
+    the cloud's ``normals`` are each coarse point's site plane normal (0 for the others), for
+    ``GaussianModel.from_point_cloud``'s discs. -> (cloud, info: points kept, and per level, 0 the finest)."""
+    if n_points < 1:
+        raise ValueError(f"thin_by_detail: n_points={n_points}: expected at least 1")
+    if not (colour_tol >= 0 and depth_tol >= 0):
+        raise ValueError(f"thin_by_detail: colour_tol={colour_tol}, depth_tol={depth_tol}: expected both >= 0")
+    from ..geometry import direction_to_lonlat, fibonacci_site_of, nearest_per_site
+
     xyz = pc.xyz.astype(np.float64)
-    r = np.linalg.norm(xyz, axis=1)
-    w = np.maximum(np.divide(np.hypot(xyz[:, 0], xyz[:, 1]), r, out=np.ones_like(r), where=r > 0), 0.02)
-    u = np.random.default_rng(seed).random(len(pc))
-    keys = np.log(np.maximum(u, 1e-300)) / w  # log of u^(1/w): same order, no underflow
-    keep = np.sort(np.argpartition(-keys, n_points - 1)[:n_points])
-    return pc.subset(keep)
+    lon, lat = direction_to_lonlat(xyz)
+    taken = np.zeros(len(pc), bool)
+    normals = np.zeros((len(pc), 3), np.float32)  # a coarse point's site plane; 0: none
+    keep, per_level = [], {}
+    base = min(n_points, len(pc))
+    for level in range(levels if colour_tol > 0 else 0, 0, -1):
+        n_sites = base // 4**level
+        if n_sites < 12:
+            continue
+        site, cos = fibonacci_site_of(pc.xyz, lon, lat, n_sites)
+        spread = site_spread(site, n_sites, xyz, pc.rgb)
+        with np.errstate(invalid="ignore"):  # NaN spreads of empty sites compare False
+            smooth = (
+                (spread["count"] >= DETAIL_MIN_POINTS)
+                & (spread["colour_sd"] <= colour_tol)
+                & (spread["depth_sd"] <= depth_tol)
+            )
+        mine = np.flatnonzero(smooth[site] & ~taken)
+        taken[mine] = True
+        kept = mine[nearest_per_site(site[mine], cos[mine], n_sites)]
+        keep.append(kept)
+        normals[kept] = spread["normal"][site[kept]]
+        per_level[level] = len(kept)
+    rest = np.flatnonzero(~taken)
+    w = _cos_latitude_weight(pc.xyz)
+    n_rest = len(rest) if len(pc) <= n_points else int(round(n_points * w[rest].sum() / w.sum()))
+    if len(rest) and n_rest:
+        keep.append(rest[_thin_index(w[rest], n_rest, seed)])
+    per_level[0] = len(keep[-1]) if len(rest) and n_rest else 0
+    index = np.sort(np.concatenate(keep)) if keep else np.zeros(0, np.int64)
+    out = pc.subset(index)
+    if per_level.keys() - {0}:  # some level ran: the coarse points carry their plane's normal
+        out.normals = normals[index]
+    return out, {"points": len(index), "points_per_level": per_level}
 
 
 def _erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:

@@ -104,3 +104,20 @@ class GaussianModel(nn.Module):
     def sh(self) -> torch.Tensor:
         """All SH coefficients [N, (d+1)^2, 3]."""
         return torch.cat([self.sh0, self.shN], 1)
+
+
+def flatten_to_discs(model: GaussianModel, normals: np.ndarray, thickness: float) -> None:
+    """Make each Gaussian whose row of ``normals`` [N, 3] is a finite non-zero vector a disc on that normal's
+    plane, in place: its local z rotated onto the normal (quaternion from the identity) and its z scale
+    ``thickness`` times its x scale; the other Gaussians are left as they are. For a freshly built isotropic
+    model (``from_point_cloud``), before any optimizer holds its parameters."""
+    nrm = np.asarray(normals, np.float64)
+    if nrm.shape != (len(model), 3):
+        raise ValueError(f"flatten_to_discs: normals {nrm.shape} for {len(model)} Gaussians; expected [N, 3]")
+    disc = np.isfinite(nrm).all(1) & (np.linalg.norm(np.nan_to_num(nrm), axis=1) > 0.5)
+    nz = nrm[disc] * np.where(nrm[disc, 2:3] < 0, -1.0, 1.0)  # a disc has no side: n_z >= 0
+    q = np.stack([1 + nz[:, 2], -nz[:, 1], nz[:, 0], np.zeros(len(nz))], 1)  # z onto n (w x y z)
+    mask = torch.from_numpy(disc).to(model.quats.device)
+    with torch.no_grad():
+        model.quats[mask] = torch.from_numpy(q / np.linalg.norm(q, axis=1, keepdims=True)).to(model.quats)
+        model.log_scales[mask, 2] = model.log_scales[mask, 0] + float(np.log(thickness))

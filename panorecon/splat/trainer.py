@@ -28,6 +28,7 @@ from .initial import (
     disocclusion_fill,
     points_for_resolution,
     sky_environment,
+    thin_by_detail,
     thin_cloud,
     view_background,
 )
@@ -39,7 +40,7 @@ from .labels import (
     make_pseudo_labels,
 )
 from .losses import total_loss
-from .model import PARAM_NAMES, GaussianModel
+from .model import PARAM_NAMES, GaussianModel, flatten_to_discs
 from .ply import save_ply
 from .rasterize import BACKENDS, resolve_backend
 from .strategy import STRATEGIES, edit_parameters
@@ -51,6 +52,8 @@ log = logging.getLogger("panorecon.train")
 # throughout (at smaller sizes a coarse step saves little and the half-size targets lose detail; measured effects:
 # docs/benchmarks.md).
 COARSE_MIN_SIZE = 128
+# init_detail's coarse Gaussians start as discs on their region's plane, this thick over their radius
+DISC_THICKNESS = 0.1
 
 
 def _layouts() -> tuple[str, ...]:
@@ -166,6 +169,20 @@ class TrainConfig:
         "label pixels per initial point over the sphere: the source's cloud is "
         "thinned to 4 pi / (fov / res)^2 / this points (0 keeps them all)",
     )
+    init_detail: float = opt(
+        0.005,
+        "colour tolerance of the content-adaptive initial cloud: where the colour's standard deviation (in [0, 1]) "
+        "and the relative distance from a plane (init_detail_depth) stay within it over a region, that region keeps "
+        "fewer, larger Gaussians (down to one per 16 x 16 of the label-pixel spacing; splat/initial.thin_by_detail); "
+        "0: the label resolution everywhere (the default's paired held-out difference: docs/benchmarks.md)",
+        check=C.float_in(0.0, 1.0, "colour standard deviation"),
+    )
+    init_detail_depth: float = opt(
+        0.01,
+        "geometric tolerance of init_detail: RMS distance of a region's points from their plane over their mean "
+        "distance",
+        check=C.float_in(0.0, 1.0, "relative distance"),
+    )
     seed: int = opt(0, "random seed", check=C.SEED)
 
     def __post_init__(self):
@@ -188,6 +205,45 @@ def fill_join_step(cfg: TrainConfig) -> int:
     share = math.asin(math.sin(half_fov) ** 2) / math.pi  # the view's solid angle over 4 pi
     step = math.ceil(round(cfg.disocclusion_fill_visits / share, 6))  # rounded: sin(45 deg)^2 is 0.5 + 1 ulp
     return step if 0 < step < cfg.iters / 2 else 0
+
+
+METRICS_MEANING = {
+    "skipped": "stages this run left out because the scene or the settings do not need them: stage -> why. sky: "
+    "no sky environment behind the Gaussians; disocclusion_fill: no points behind depth edges; depth_loss: no "
+    "Pearson depth term; held-out: no held-out views; depth_metrics: no depth or point metrics against a truth "
+    "(the points stage's report reads n/a)",
+    "initial_thinning": "the initial cloud after thinning to the label resolution (splat/initial.thin_by_detail): "
+    "points kept, and per level (0: the label-pixel spacing; l: sites 2^l times further apart, kept where colour "
+    "and geometry are smooth within init_detail and init_detail_depth)",
+}
+
+
+def skipped_stages(scene, cfg: TrainConfig, env, fill_points: int, heldout: list, has_teacher: bool) -> dict:
+    """{stage: why} for each stage ``train`` left out (``METRICS_MEANING['skipped']``): ``env`` the sky environment
+    (None: none), ``fill_points`` the disocclusion fill's size, ``heldout`` the held-out views, ``has_teacher``
+    whether the labels carry teacher depth."""
+    skipped = {}
+    if cfg.sky == "none":
+        skipped["sky"] = "sky = none"
+    elif env is None:
+        skipped["sky"] = "the panorama has no sky pixel"
+    if not cfg.disocclusion_fill_deg:
+        skipped["disocclusion_fill"] = "disocclusion_fill_deg = 0"
+    elif not fill_points:
+        skipped["disocclusion_fill"] = "the cloud has no depth edge as seen from the centre"
+    if not has_teacher:
+        skipped["depth_loss"] = "no teacher depth for the labels"
+    elif not cfg.w_depth:
+        skipped["depth_loss"] = "w_depth = 0"
+    if not heldout:
+        skipped["held-out"] = (
+            "heldout = 0"
+            if not cfg.heldout
+            else scene.meta.get("heldout_note", "n/a: scene has no ground-truth world").removeprefix("n/a: ")
+        )
+    if not scene.has_ground_truth:
+        skipped["depth_metrics"] = f"scene {scene.name!r} has no true depth"
+    return skipped
 
 
 def _adam(model: GaussianModel, groups) -> torch.optim.Adam:
@@ -259,13 +315,18 @@ def train(
                 PointCloud(np.concatenate([point_cloud.xyz, fill.xyz]), np.concatenate([point_cloud.rgb, fill.rgb])),
                 None,
             )
+    thinning = {"points": len(point_cloud), "points_per_level": {}}
     if cfg.init_pixels_per_point:
         n_points = points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point)
-        if fill is not None and len(point_cloud) > n_points:  # the late fill thinned as the cloud is
-            fill = thin_cloud(fill, max(1, round(len(fill) * n_points / len(point_cloud))), cfg.seed)
+        before = len(point_cloud)
+        point_cloud, thinning = thin_by_detail(point_cloud, n_points, cfg.init_detail, cfg.init_detail_depth, cfg.seed)
+        if fill is not None and len(point_cloud) < before:  # the late fill thinned as the cloud was
+            fill = thin_cloud(fill, max(1, round(len(fill) * len(point_cloud) / before)), cfg.seed)
             fill_points = len(fill)
-        point_cloud = thin_cloud(point_cloud, n_points, cfg.seed)
-    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity).to(dev)
+    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity)
+    if cfg.init_detail and point_cloud.normals is not None:  # thin_by_detail's coarse points: discs on their plane
+        flatten_to_discs(model, point_cloud.normals, DISC_THICKNESS)
+    model = model.to(dev)
     fill_step = fill_step if fill is not None else -1
     late_fill = (
         None if fill is None else GaussianModel.from_point_cloud(fill, cfg.sh_degree, cfg.disocclusion_opacity).to(dev)
@@ -485,6 +546,9 @@ def train(
         heldout_best=best_heldout(history, heldout_na),
         heldout_plateau=heldout_plateau(history, heldout_na),
         heldout_scale=heldout_scale,
+        initial_thinning=thinning,
+        skipped=skipped_stages(scene, cfg, env, fill_points, heldout, labels[0].depth is not None),
+        meaning=METRICS_MEANING,
         config=dataclasses.asdict(cfg),
     )
     write_json(out / "metrics.json", metrics)

@@ -71,11 +71,11 @@ def _nearest_per_site_by_sort(site, cos):
 def test_nearest_per_site_equals_the_sort(n, n_sites, levels):
     """The O(N) per-site maximum picks the same point per site as sorting by (site, -cos) with ties to the lowest
     index (``levels``: cos quantized to a few values, so ties are common); sites without a point give none."""
-    from panorecon.geometry.pointcloud import _nearest_per_site
+    from panorecon.geometry.pointcloud import nearest_per_site
 
     rng = np.random.default_rng(n)
     site = rng.integers(0, n_sites, n)
     cos = rng.random(n) if levels is None else rng.integers(0, levels, n) / levels
-    fast = _nearest_per_site(site, cos, n_sites)
+    fast = nearest_per_site(site, cos, n_sites)
     assert np.array_equal(fast, _nearest_per_site_by_sort(site, cos))
     assert len(fast) == len(np.unique(site))

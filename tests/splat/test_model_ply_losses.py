@@ -373,3 +373,28 @@ def test_nearest_neighbour_scale_equals_brute_force():
     np.testing.assert_allclose(nearest_neighbour_scale(xyz, 3), np.sort(d, 1)[:, :3].mean(1), rtol=1e-12)
     np.testing.assert_allclose(nearest_neighbour_scale(xyz[:2], 3), [d[0, 1], d[0, 1]], rtol=1e-12)
     assert nearest_neighbour_scale(xyz[:1]).tolist() == [1.0]
+
+
+def test_points_with_a_normal_start_as_discs_on_their_plane():
+    from panorecon.splat.model import flatten_to_discs
+    from panorecon.splat.rasterize import quat_to_rotmat
+
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(6, 3))
+    n[1] = [0, 0, -1]  # straight down: the same disc as straight up
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    normals = n.copy()
+    normals[4] = 0  # no normal: isotropic
+    normals[5] = np.nan
+    pc = PointCloud(rng.normal(size=(6, 3)) * 5, rng.random((6, 3)), normals=normals)
+    iso = GaussianModel.from_point_cloud(pc, 0)
+    disc = GaussianModel.from_point_cloud(pc, 0)
+    flatten_to_discs(disc, normals, 0.1)
+    R = quat_to_rotmat(disc.quats.detach() / disc.quats.detach().norm(dim=-1, keepdim=True))
+    z = R[..., 2].numpy()  # the local axis the thin scale is along
+    assert np.allclose(np.abs(np.einsum("nk,nk->n", z[:4], n[:4])), 1, atol=1e-6)
+    s_iso, s_disc = iso.scales().detach(), disc.scales().detach()
+    assert torch.allclose(s_disc[:4, :2], s_iso[:4, :2]) and torch.allclose(s_disc[:4, 2], 0.1 * s_iso[:4, 2])
+    assert torch.equal(disc.quats[4:], iso.quats[4:]) and torch.equal(s_disc[4:], s_iso[4:])
+    with pytest.raises(ValueError, match="normals"):
+        flatten_to_discs(disc, normals[:3], 0.1)

@@ -142,10 +142,14 @@ def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
         history_every=0,
         sh_degree=0,
         init_pixels_per_point=4.0,
+        init_detail=0.0,  # the label resolution everywhere
     )
     n = points_for_resolution(16, 60.0, 4.0)
     assert n < len(pc)
     assert train(scene, pc, TrainConfig(**c), tmp_path / "a", progress=False)["initial_gaussians"] == n
+    by_content = train(scene, pc, TrainConfig(**{**c, "init_detail": 0.05}), tmp_path / "d", progress=False)
+    assert by_content["initial_gaussians"] < n  # the bedroom's smooth walls need fewer
+    assert by_content["initial_thinning"]["points"] == by_content["initial_gaussians"]
     early = {**c, "init_pixels_per_point": 0, "disocclusion_fill_visits": 0.0}  # the fill in the initial cloud
     kept = train(scene, pc, TrainConfig(**early), tmp_path / "b", progress=False)
     assert kept["disocclusion_points"] > 0  # the bedroom's furniture has depth edges
