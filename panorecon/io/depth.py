@@ -43,7 +43,7 @@ CLOSED_MAX_MEDIAN_M = 50.0
 # eps 1e-15 sits below gradients that scale as 1 / length; within this window both stay at least 1e6 away from
 # float32's limits (1.2e-38, 3.4e38) and every length constant is relative to the scene (splat/model.py), so a
 # scene is the same problem at any scale in it. Outside it: PanoreconInputError, not a quietly bad model
-SCENE_MEDIAN_RANGE_M = (1e-4, 1e6)
+SCENE_MEDIAN_RANGE_M = (1e-4, 1e7)
 # the field's stored units (metres per unit), tried in this order when a median is implausible
 UNIT_CONVENTIONS = (
     ("millimetres (Structured3D)", 1e-3),

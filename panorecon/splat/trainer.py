@@ -278,6 +278,7 @@ def train(
 
     cfg = config
     check_scene_scale(np.linalg.norm(point_cloud.xyz, axis=1), "the point cloud to train from")
+    given_cloud = point_cloud  # the checkpoint's key: the cloud as given (thinning by detail may drop a change)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -346,7 +347,7 @@ def train(
     )
     start, history, budgets = 0, [], []
     ckpt = out / "ckpt.pt"
-    keys = checkpoint_inputs(scene, point_cloud, cfg.digest(), {**(inputs or {}), "heldout_scale": heldout_scale})
+    keys = checkpoint_inputs(scene, given_cloud, cfg.digest(), {**(inputs or {}), "heldout_scale": heldout_scale})
     state = load_checkpoint(ckpt, keys, cfg.iters)
     torch.manual_seed(cfg.seed)  # split sampling; a resumed run continues the stored generator states
     if state is not None:

@@ -558,6 +558,6 @@ def test_training_gives_the_same_psnr_and_depth_error(psnr_at_scale, s):
 def test_a_scene_too_small_or_too_large_for_float32_is_refused_naming_its_median(setup, tmp_path, s):
     scene, pc, depth_fn = setup
     far = type(pc)(pc.xyz * s, pc.rgb)
-    with pytest.raises(PanoreconInputError, match=r"median distance .* m is outside the 0.0001 to 1e\+06 m"):
+    with pytest.raises(PanoreconInputError, match=r"median distance .* m is outside the 0.0001 to 1e\+07 m"):
         train(scene, far, cfg(), tmp_path / "x", depth_fn, progress=False)
     assert not (tmp_path / "x").exists()
