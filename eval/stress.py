@@ -37,9 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
+from panorecon.metrics.depth import FLYING_REL
+
 SOURCES = ("fibonacci", "icosahedral", "latlong", "cube", "erp-direct", "moge-merge")
 TEACHER = "sim:relative"
-FLYING = 0.5  # a point more than this relative error off its true distance (after the median scale) is flying
 
 
 @dataclass(frozen=True)
@@ -183,10 +184,10 @@ def _teacher(case: Case) -> str | None:
 
 
 def error_shares(pred: np.ndarray, truth: np.ndarray, scale: float, mask: np.ndarray) -> dict:
-    """Median relative error and share of flying points (relative error > FLYING) of ``pred`` x ``scale``
-    against ``truth`` ([H, W] ERP distances) over ``mask`` & both finite and positive, plain and WS-weighted (row
-    weights cos latitude; the weighted median is the first error whose cumulative weight reaches half). NaN with
-    no pixel."""
+    """Median relative error and share of flying points (relative error > metrics.depth's FLYING_REL) of
+    ``pred`` x ``scale`` against ``truth`` ([H, W] ERP distances) over ``mask`` & both finite and positive, plain
+    and WS-weighted (row weights cos latitude; the weighted median is the first error whose cumulative weight
+    reaches half). NaN with no pixel."""
     from panorecon.metrics.panorama import erp_row_weights
 
     with np.errstate(invalid="ignore"):
@@ -200,9 +201,9 @@ def error_shares(pred: np.ndarray, truth: np.ndarray, scale: float, mask: np.nda
     cw = np.cumsum(w[order])
     return {
         "median_rel": float(np.median(rel)),
-        "flying": float(np.mean(rel > FLYING)),
+        "flying": float(np.mean(rel > FLYING_REL)),
         "ws_median_rel": float(rel[order][np.searchsorted(cw, 0.5 * cw[-1])]),
-        "ws_flying": float(np.sum(w * (rel > FLYING)) / np.sum(w)),
+        "ws_flying": float(np.sum(w * (rel > FLYING_REL)) / np.sum(w)),
     }
 
 
@@ -360,7 +361,7 @@ def main(argv=None) -> dict:
             "teacher": TEACHER,
             "train_budget": {**train, "heldout": 0, "source": "fibonacci", "config": "TrainConfig defaults otherwise"},
             "init_detail": TrainConfig(**train).init_detail,
-            "flying_threshold": FLYING,
+            "flying_threshold": FLYING_REL,
             "rows": rows,
             "table": table(rows),
         }

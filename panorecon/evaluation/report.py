@@ -201,6 +201,14 @@ def comparison_tables(
         return []
     col, name, _ = prim
     fmt = dict((c, f) for c, _, f in TABLE_COLUMNS).get(col, "{:.4g}")
+    heads = [
+        (c, h, f)
+        for c, h, f in TABLE_COLUMNS
+        if c in frame and DIRECTION.get(c, 0) != 0 and pd.to_numeric(frame[c], errors="coerce").notna().any()
+    ]
+    # every metric's comparisons once; the primary metric (one of them) heads the first table
+    metrics = dict.fromkeys([col, *(c for c, _, _ in heads)])
+    per_metric = {c: comparison_rows(frame, reference, c, margins, paper) for c in metrics}
     first = (
         [label_header, f"{name}: Δ these scenes", "to resolve", "Δ new scenes", "to resolve"],
         [
@@ -211,15 +219,9 @@ def comparison_tables(
                 _diff_cell(c.new, fmt, c.says("new")),
                 c.to_resolve_new,
             ]
-            for c in comparison_rows(frame, reference, col, margins, paper)
+            for c in per_metric[col]
         ],
     )
-    heads = [
-        (c, h, f)
-        for c, h, f in TABLE_COLUMNS
-        if c in frame and DIRECTION.get(c, 0) != 0 and pd.to_numeric(frame[c], errors="coerce").notna().any()
-    ]
-    per_metric = {c: comparison_rows(frame, reference, c, margins, paper) for c, _, _ in heads}
     labels = [label for label in dict.fromkeys(frame["label"]) if label != reference]
     every = (
         [label_header] + [h for _, h, _ in heads],
