@@ -84,11 +84,12 @@ def _render(
     dev = model.means.device
     V, K = cameras if cameras is not None else _cameras(views, dev)
     size = res or cfg.res
+    scales, opacities = model.rendered()
     img, alpha, depth, meta = rasterize(
         model.means,
         model.quats,
-        model.scales(),
-        model.opacities(),
+        scales,
+        opacities,
         (model.sh0, model.shN),  # the cpu backend reads both in place: no [N, 16, 3] concatenation per step
         V,
         K,

@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from ..geometry import PointCloud
+from .footprint import filtered
 from .rasterize.sh import C0
 
 # the rasterizer's near plane, a fraction of the distance from the origin within which the nearest 1 % of the
@@ -57,6 +58,8 @@ class GaussianModel(nn.Module):
     def __init__(self, means, quats, log_scales, logit_opacities, sh0, shN):
         super().__init__()
         self.near_plane = near_plane_for(means)
+        # (variance [N], strength) of the footprint filter (splat/footprint.py) while a trainer keeps one; None: none
+        self.footprint: tuple[torch.Tensor, float] | None = None
         self.means = nn.Parameter(means)
         self.quats = nn.Parameter(quats)
         self.log_scales = nn.Parameter(log_scales)
@@ -100,6 +103,13 @@ class GaussianModel(nn.Module):
 
     def opacities(self) -> torch.Tensor:
         return torch.sigmoid(self.logit_opacities)
+
+    def rendered(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Scales [N, 3] and opacities [N] as rendered: through the footprint filter while one is set
+        (``footprint``), else ``scales()`` and ``opacities()``."""
+        if self.footprint is None:
+            return self.scales(), self.opacities()
+        return filtered(self.log_scales, self.logit_opacities, *self.footprint)
 
     def sh(self) -> torch.Tensor:
         """All SH coefficients [N, (d+1)^2, 3]."""

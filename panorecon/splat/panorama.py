@@ -32,11 +32,12 @@ def _render(
     model: GaussianModel, viewmats: np.ndarray, Ks: np.ndarray, width: int, height: int, backend: str
 ) -> np.ndarray:
     with torch.no_grad():
+        scales, opacities = model.rendered()
         img = rasterize(
             model.means,
             model.quats,
-            model.scales(),
-            model.opacities(),
+            scales,
+            opacities,
             model.sh(),
             torch.tensor(viewmats, dtype=torch.float32),
             torch.tensor(Ks, dtype=torch.float32),

@@ -25,9 +25,15 @@ def ply_properties(n_rest: int) -> list[str]:
 
 
 def save_ply(model: GaussianModel, path: str | os.PathLike) -> None:
-    """Write ``model`` in the 3DGS layout (float32; normals 0, as the original writes them), atomically."""
+    """Write ``model`` in the 3DGS layout (float32; normals 0, as the original writes them), atomically; a model
+    with a footprint filter is written as rendered (the filter baked into its scales and opacities, as
+    Mip-Splatting exports), so that any 3DGS viewer shows what was trained."""
     with torch.no_grad():
         n = len(model)
+        logit_opacities, log_scales = model.logit_opacities, model.log_scales
+        if model.footprint is not None:
+            scales, opacities = model.rendered()
+            logit_opacities, log_scales = torch.logit(opacities, eps=1e-7), torch.log(scales)  # eps: renders nothing
         # f_rest is channel-major: all bands of red, then green, then blue
         rest = model.shN.detach().transpose(1, 2).reshape(n, -1)
         cols = [
@@ -35,8 +41,8 @@ def save_ply(model: GaussianModel, path: str | os.PathLike) -> None:
             torch.zeros(n, 3),
             model.sh0.detach()[:, 0],
             rest,
-            model.logit_opacities[:, None],
-            model.log_scales,
+            logit_opacities[:, None],
+            log_scales,
             model.quats,
         ]
         data = torch.cat([c.detach().float().cpu() for c in cols], 1).numpy()

@@ -22,6 +22,7 @@ from ..device import device_record, reset_peak_memory, resolve_device, synchroni
 from ..geometry import PointCloud
 from ..io import peak_rss_mb, write_image, write_json
 from ..io.depth import check_scene_scale
+from . import footprint
 from .checkpoint import checkpoint_inputs, load_checkpoint, save_checkpoint
 from .evaluate import _cameras, _evaluate, _heldout_psnr, _render, best_heldout, heldout_plateau, psnr
 from .initial import (
@@ -116,6 +117,12 @@ class TrainConfig:
     w_ssim: float = opt(0.2, "weight of 1 - SSIM (eq. 12)", check=C.LOSS_WEIGHT)
     w_depth: float = opt(
         0.05, "weight of the Pearson depth term against the teacher's view depth (eq. 10-11)", check=C.LOSS_WEIGHT
+    )
+    footprint_filter: float = opt(
+        0.0,
+        "variance of Mip-Splatting's 3D smoothing filter in squared label pixels (its 0.2): every Gaussian rendered "
+        "no thinner than the finest label pixel that sees it (splat/footprint.py); 0: none",
+        check=C.float_in(0.0, 100.0, "filter variance"),
     )
     lr_means: float = opt(1.6e-4, "initial means learning rate, times the scene extent")
     lr_means_final: float = opt(1.6e-6, "final means learning rate (exponential decay), times the extent")
@@ -356,6 +363,8 @@ def train(
         opt.load_state_dict(state["optimizer"])
         start, history = state["iteration"], state["history"]
         budgets = state.get("budgets", [])
+        if state.get("footprint") is not None:
+            model.footprint = (state["footprint"].to(dev), cfg.footprint_filter)
         strategy.load_state_dict(state["strategy"])
         torch.set_rng_state(state["rng"])
         if dev.type == "cuda" and "cuda_rng" in state:
@@ -399,6 +408,7 @@ def train(
             "strategy": strategy.state_dict(),
             **rng,
             "model": {n: p.detach() for n, p in model.named_parameters()},
+            "footprint": None if model.footprint is None else model.footprint[0],  # refreshed every 100 steps
         }
         save_checkpoint(ckpt, keys, state)
         return str(ckpt)
@@ -412,6 +422,7 @@ def train(
         opt.param_groups[0]["lr"] = lr
         k = int(order[it])
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every) if cfg.sh_increase_every else 0
+        footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, cfg.res)  # a new or resized model
         res, targets_it, teachers_it, Ks_it, backgrounds_it = (
             coarse if it < coarse_steps else (cfg.res, targets, teachers, Ks, backgrounds)
         )
@@ -447,6 +458,7 @@ def train(
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
+        footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, cfg.res, it + 1)
         sync_now = (
             (cfg.history_every and (it + 1) % cfg.history_every == 0)
             or it + 1 == cfg.iters

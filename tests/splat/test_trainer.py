@@ -232,6 +232,32 @@ def test_an_interrupted_run_resumes_to_the_same_state(setup, tmp_path, monkeypat
     assert resumed["pseudo-label"]["psnr"] == pytest.approx(full["pseudo-label"]["psnr"], abs=1e-4)
 
 
+def test_the_footprint_filter_is_resumed_exactly_and_baked_into_the_ply(setup, tmp_path, monkeypatch):
+    scene, pc, depth_fn = setup
+    c = cfg(footprint_filter=0.5)
+    saved = {}
+    real_save = trainer_mod.save_ply
+    monkeypatch.setattr(trainer_mod, "save_ply", lambda m, p: (saved.setdefault(str(p), m), real_save(m, p)))
+    full = train(scene, pc, c, tmp_path / "full", depth_fn, progress=False)
+    model = saved[str(tmp_path / "full" / "point_cloud.ply")]
+    scales, opacities = model.rendered()
+    assert (scales > model.scales()).all() and (opacities < model.opacities()).all()
+    # the PLY holds the Gaussians as rendered: a 3DGS viewer (no filter) sees what was trained and scored
+    ply = load_ply(tmp_path / "full" / "point_cloud.ply")
+    torch.testing.assert_close(ply.scales(), scales.detach(), rtol=1e-5, atol=0)
+    torch.testing.assert_close(ply.opacities(), opacities.detach(), rtol=1e-4, atol=1e-7)
+    # the variances travel in the checkpoint (recomputed at the resume step, they would differ from the run's)
+    interrupt_training(monkeypatch, lambda: train(scene, pc, c, tmp_path / "resumed", depth_fn, progress=False))
+    resumed = train(scene, pc, c, tmp_path / "resumed", depth_fn, progress=False)
+    b = load_ply(tmp_path / "resumed" / "point_cloud.ply")
+    for x, y in zip(ply.parameters(), b.parameters()):
+        torch.testing.assert_close(x, y, atol=1e-6, rtol=1e-5)
+    assert resumed["pseudo-label"]["psnr"] == pytest.approx(full["pseudo-label"]["psnr"], abs=1e-4)
+    assert full["pseudo-label"]["psnr"] != pytest.approx(
+        train(scene, pc, cfg(), tmp_path / "off", depth_fn, progress=False)["pseudo-label"]["psnr"], abs=1e-3
+    )
+
+
 def test_strategy_clones_splits_prunes_and_keeps_adam_aligned():
     from panorecon.geometry import PointCloud
 
