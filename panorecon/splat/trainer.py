@@ -42,6 +42,7 @@ from .labels import (
 )
 from .losses import total_loss
 from .model import PARAM_NAMES, GaussianModel, flatten_to_discs
+from .offcentre import offcentre_labels
 from .ply import save_ply
 from .rasterize import BACKENDS, resolve_backend
 from .strategy import STRATEGIES, edit_parameters
@@ -123,6 +124,18 @@ class TrainConfig:
         "variance of Mip-Splatting's 3D smoothing filter in squared label pixels (its 0.2): every Gaussian rendered "
         "no thinner than the finest label pixel that sees it (splat/footprint.py); 0: none",
         check=C.float_in(0.0, 100.0, "filter variance"),
+    )
+    offcentre_labels: int = opt(
+        0,
+        "masked pseudo-labels from positions off the panorama's centre, beside `labels`: the panorama through the "
+        "initial cloud's geometry, co-visible pixels only (splat/offcentre.py); 0: none",
+        check=C.COUNT,
+    )
+    offcentre_radius: float = opt(
+        0.7,
+        "positions of the off-centre labels: uniform in the ball of this fraction of the cloud's free-space radius "
+        "(the distance of its nearest 1 % of points from the centre)",
+        check=C.FRACTION,
     )
     lr_means: float = opt(1.6e-4, "initial means learning rate, times the scene extent")
     lr_means_final: float = opt(1.6e-6, "final means learning rate (exponential decay), times the extent")
@@ -309,7 +322,11 @@ def train(
     heldout = [in_cloud_frame(v, heldout_scale) for v in heldout]
     heldout_na = covisible_shortfall(heldout)  # other panoramas that see too little: no held-out number at all
     env = sky_environment(scene) if cfg.sky == "panorama" else None
-    for v in (*labels, *heldout):
+    # the panorama seen from elsewhere through the cloud as given (no fill: the centre never saw behind edges)
+    offcentre = offcentre_labels(
+        scene.rgb, point_cloud, cfg.offcentre_labels, cfg.res, cfg.fov_deg, cfg.offcentre_radius, cfg.seed
+    )
+    for v in (*labels, *offcentre, *heldout):
         v.background = view_background(env, v.camera)
     seconds["labels"] = time.perf_counter() - t
     fill, fill_points = None, 0  # the fill's points: joined to the cloud now, or to the model at fill_step
@@ -371,28 +388,31 @@ def train(
             torch.cuda.set_rng_state(state["cuda_rng"], dev)
         log.info("resuming %s at step %d of %d", ckpt, start, cfg.iters)
     # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
-    targets = torch.from_numpy(np.stack([v.rgb for v in labels])).to(dev)
+    views = labels + offcentre  # the views trained on: teacher depth for the centre's, masks for the others'
+    targets = torch.from_numpy(np.stack([v.rgb for v in views])).to(dev)
     teachers = None if labels[0].depth is None else torch.from_numpy(np.stack([v.depth for v in labels])).to(dev)
-    viewmats, Ks = _cameras(labels, dev)
+    masks = None if not offcentre else torch.from_numpy(np.stack([v.mask for v in offcentre])).to(dev)
+    viewmats, Ks = _cameras(views, dev)
     backgrounds = (
-        None if labels[0].background is None else torch.from_numpy(np.stack([v.background for v in labels])).to(dev)
+        None if labels[0].background is None else torch.from_numpy(np.stack([v.background for v in views])).to(dev)
     )
     # coarse to fine: the same labels at res // 2 (area means; pixel centres at i + 0.5, so K scales with the size)
     coarse_steps = int(cfg.coarse_until * cfg.iters) if cfg.res // 2 >= COARSE_MIN_SIZE else 0
-    coarse = None  # (size, targets, teacher depths, Ks, backgrounds) of the coarse steps, if any are left
+    coarse = None  # (size, targets, teacher depths, masks, Ks, backgrounds) of the coarse steps, if any are left
     if coarse_steps > start:
         small = cfg.res // 2
         area = lambda x: None if x is None else F.interpolate(x.movedim(-1, 1), size=small, mode="area").movedim(1, -1)  # noqa: E731
         teachers_small = None if teachers is None else area(teachers[..., None])[..., 0]
         Ks_small = Ks * torch.tensor([[small / cfg.res], [small / cfg.res], [1.0]], device=dev)
-        coarse = (small, area(targets), teachers_small, Ks_small, area(backgrounds))
+        masks_small = None if masks is None else area(masks[..., None].float())[..., 0] > 0.999
+        coarse = (small, area(targets), teachers_small, masks_small, Ks_small, area(backgrounds))
     first_bad = torch.full((), -1, dtype=torch.long, device=dev)  # first iteration with a non-finite loss
     synchronize(dev)
     t = time.perf_counter()
     # training seconds exclude the held-out history samples; a resumed run continues from its last sample
     history_s, clock0 = 0.0, (history[-1].get("seconds", 0.0) if history else 0.0)
     gen = np.random.default_rng(cfg.seed)
-    order = gen.integers(0, len(labels), size=cfg.iters)
+    order = gen.integers(0, len(views), size=cfg.iters)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
 
     def checkpoint(iteration: int) -> str:
@@ -423,12 +443,12 @@ def train(
         k = int(order[it])
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every) if cfg.sh_increase_every else 0
         footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, cfg.res)  # a new or resized model
-        res, targets_it, teachers_it, Ks_it, backgrounds_it = (
-            coarse if it < coarse_steps else (cfg.res, targets, teachers, Ks, backgrounds)
+        res, targets_it, teachers_it, masks_it, Ks_it, backgrounds_it = (
+            coarse if it < coarse_steps else (cfg.res, targets, teachers, masks, Ks, backgrounds)
         )
         img, alpha, depth, meta = _render(
             model,
-            [labels[k]],
+            [views[k]],
             cfg,
             deg,
             backend,
@@ -439,7 +459,9 @@ def train(
         )
         meta["means2d"].retain_grad()
         target = targets_it[k : k + 1]
-        teacher = None if teachers_it is None else teachers_it[k]
+        if k >= len(labels):  # an off-centre label: its masked pixels give no loss (the render is their target)
+            target = torch.where(masks_it[k - len(labels), None, ..., None], target, img.detach())
+        teacher = None if teachers_it is None or k >= len(labels) else teachers_it[k]
         expected_z = (depth / alpha.clamp_min(1e-6))[0, ..., 0]
         loss = total_loss(
             img,
@@ -470,11 +492,12 @@ def train(
             )
         if cfg.history_every and (it + 1) % cfg.history_every == 0:
             te = time.perf_counter()
+            seen = slice(None) if k < len(labels) else masks_it[k - len(labels)]  # the pixels the step scored
             history.append(
                 {
                     "iteration": it + 1,
                     "seconds": clock0 + te - t - history_s,
-                    "psnr": psnr(img.detach().clamp(0, 1), target),
+                    "psnr": psnr(img.detach().clamp(0, 1)[0][seen], target[0][seen]),
                     "gaussians": len(model),
                 }
             )
