@@ -102,12 +102,6 @@ def cliff(ratio: float) -> Callable:
     return build
 
 
-def seam_jump(width):
-    """Distance rising with longitude from 1 m (left edge) to 10 m (right edge): a 1:10 jump at the seam."""
-    lon, lat = _grid(width)
-    return erp_case("seam jump", 1.0 + 9.0 * (lon + np.pi) / (2 * np.pi), _texture(lon, lat))
-
-
 def ramp(decades: float) -> Callable:
     """Distance 0.1 m at the south pole rising log-linearly with latitude over ``decades`` decades."""
 
@@ -137,6 +131,17 @@ def textureless(width):
     return erp_case("textureless", np.full(lon.shape, 3.0), np.full((*lon.shape, 3), 128, np.uint8))
 
 
+def stress_scene(name: str) -> Callable:
+    """A case of ``panorecon.scenes.stress.CASES`` (the scenes the fusion's tests share)."""
+
+    def build(width):
+        from panorecon.scenes.stress import CASES
+
+        return CASES[name](width)
+
+    return build
+
+
 def named_scene(name: str) -> Callable:
     def build(width):
         from panorecon.scenes import load_scene
@@ -158,7 +163,7 @@ CASES = [
     Case("cliff-10", "near wall 1 m before a far sphere, 1:10", cliff(10)),
     Case("cliff-100", "near wall before a far sphere, 1:100", cliff(100)),
     Case("cliff-1e4", "near wall before a far sphere, 1:1e4", cliff(1e4)),
-    Case("seam-jump", "1 m to 10 m across the left/right seam", seam_jump),
+    Case("seam-jump", "1 m to 10 m across the left/right seam", stress_scene("seam-jump")),
     Case("ramp-2", "distance over 2 decades with latitude", ramp(2)),
     Case("ramp-4", "distance over 4 decades with latitude", ramp(4)),
     Case("all-sky", "every pixel sky", all_sky),

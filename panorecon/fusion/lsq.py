@@ -91,6 +91,9 @@ class FusionConfig:
     # blended across, a smaller jump is less than 50 % off) are not observed, and the upsampling keeps to one side
     # of such an edge (warp.depth_edge_pixels, upsample.snap_to_side); None: off
     edge_jump: float | None = math.log(1.5)
+    # view pixels within this many pixels of such an edge whose step to a neighbour is above half edge_jump are
+    # part of it (a teacher's blur spreads a jump over a few pixels; sim:relative's 1.5 px: 3); 0: edge_jump only
+    edge_reach: int = 3
     resolution: str = "views"  # "views": solve up to the level the views resolve, then guided upsampling; "full"
     upsample_radius: int = 2  # guided upsampling window radius, solve-level pixels (upsample.py)
     upsample_eps: float = 1e-4  # guided upsampling regularisation, colour variance (colour in [0, 1])
@@ -122,6 +125,8 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.edge_log={self.edge_log!r}: expected > 0 (log distance)")
         if self.edge_jump is not None and not (math.isfinite(self.edge_jump) and self.edge_jump > 0):
             raise ValueError(f"FusionConfig.edge_jump={self.edge_jump!r}: expected None or > 0 (log distance)")
+        if not (isinstance(self.edge_reach, int) and self.edge_reach >= 0):
+            raise ValueError(f"FusionConfig.edge_reach={self.edge_reach!r}: expected an integer >= 0 (view pixels)")
         if self.preconditioner not in ("amg", "jacobi"):
             raise ValueError(f"FusionConfig.preconditioner={self.preconditioner!r}: expected 'amg' or 'jacobi'")
         if self.warm_start not in ("data", "coarse"):
@@ -223,6 +228,7 @@ def _observe(views, dists, height, border_px: int = 0, cfg: FusionConfig | None 
             "supersample": cfg.supersample if finest else 1,
             "edge_log": cfg.edge_log,
             "edge_jump": cfg.edge_jump,
+            "edge_reach": cfg.edge_reach,
         }
     )
     obs = [warp_to_erp(v, height, width, dirs, d, border_px, **warp) for v, d in zip(views, dists)]

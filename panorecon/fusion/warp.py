@@ -66,6 +66,7 @@ def warp_to_erp(
     edge_log: float = 0.1,
     edge_jump: float | None = None,
     edge_px: int = 1,
+    edge_reach: int = 0,
 ) -> ErpObservation:
     """Backward warp of a view's ray distance onto the ERP grid. ``directions`` [H*W, 3] may be passed to
     share the ERP rays between views; ``distance`` [h, w] overrides ``view.to_distance()`` (e.g. after affine
@@ -78,7 +79,9 @@ def warp_to_erp(
     than ``edge_log`` in log distance from the nearest tap are left out), reads more than ``edge_log`` from the
     view pixel under the centre ray left out too: depth edges are not blended.
     Averaging what the view holds inside the ERP pixel's footprint is what averages the teacher's
-    per-pixel noise; the pixel is observed where its centre ray's nearest view pixel is valid."""
+    per-pixel noise; the pixel is observed where its centre ray's nearest view pixel is valid and, with
+    ``edge_jump`` (log distance; None: off), not at a depth edge (``depth_edge_pixels`` with ``edge_reach``,
+    dilated to ``edge_px``)."""
     if sampling not in ("nearest", "linear"):
         raise ValueError(f"warp_to_erp: sampling={sampling!r}; expected 'nearest' or 'linear'")
     if directions is None:
@@ -92,7 +95,7 @@ def warp_to_erp(
     with np.errstate(divide="ignore", invalid="ignore"):
         log_view = np.log(np.where(dist > 0, dist, np.nan).astype(np.float64))
     if edge_jump is not None:
-        ok &= ~depth_edge_pixels(log_view, edge_jump, edge_px)[rows, cols]
+        ok &= ~depth_edge_pixels(log_view, edge_jump, edge_px, edge_reach)[rows, cols]
     index, rows, cols, cos, border, x, y = index[ok], rows[ok], cols[ok], cos[ok], border[ok], x[ok], y[ok]
     if sampling == "nearest":
         value = log_view[rows, cols]
@@ -109,23 +112,30 @@ def warp_to_erp(
     return ErpObservation(index + r0 * width, value, cos**2, border)
 
 
-def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1) -> np.ndarray:
+def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1, reach: int = 0) -> np.ndarray:
     """[h, w] bool: the valid view pixels whose log distance differs from one of their 8 valid neighbours by more
-    than ``jump`` (both pixels of every such pair), dilated to ``px`` pixels (Chebyshev).
+    than ``jump`` (both pixels of every such pair), with ``reach`` > 0 also those that differ by more than
+    ``jump / 2`` within ``reach`` pixels (Chebyshev) of the first, all dilated to ``px`` pixels (Chebyshev).
 
     Such a pixel may straddle a depth edge: a ray through it can belong to either side, and a read or a blend
     there can be anything in between. A pixel put on the wrong side of (or blended across) a step of at most
     ``jump`` is off by less than that; a smooth slope steeper than ``jump`` per pixel (a floor within a degree of
-    the horizon, a teacher's blurred edge) is flagged too: the view does not resolve it."""
+    the horizon, a teacher's blurred edge) is flagged too: the view does not resolve it. A teacher's blur spreads
+    a jump over a few pixels, each step holding part of it: next to a step over ``jump`` (``reach``), a step over
+    half of it is taken as part of the same edge, while a slope away from any edge keeps the ``jump`` test."""
     h, w = log_view.shape
     pad = np.full((h + 2, w + 2), np.nan)
     pad[1:-1, 1:-1] = log_view
-    edge = np.zeros((h, w), bool)
+    step = np.zeros((h, w))  # the largest |difference| to a valid 8-neighbour (0 without one)
     with np.errstate(invalid="ignore"):
         for dr in (-1, 0, 1):
             for dc in (-1, 0, 1):
-                if dr or dc:  # False where either pixel is invalid
-                    edge |= np.abs(pad[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w] - log_view) > jump
+                if dr or dc:
+                    step = np.fmax(step, np.abs(pad[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w] - log_view))
+    edge = step > jump
+    if reach > 0 and edge.any():
+        near = cv2.dilate(edge.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
+        edge |= near & (step > jump / 2)
     if px > 1:
         edge = cv2.dilate(edge.astype(np.uint8), np.ones((2 * px - 1, 2 * px - 1), np.uint8)).astype(bool)
     return edge & np.isfinite(log_view)

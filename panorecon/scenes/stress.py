@@ -5,6 +5,9 @@ depth fusion or a trainer, and a scene's copy at another scale.
   half-size ``near_m`` around the centre, the back half the same cube ``ratio`` times larger: two vertical depth
   edges, pole to pole, across which the distance jumps by ``ratio`` (10 to 1e4: a wall at arm's length beside
   a view kilometres deep).
+- ``seam_jump(ratio)``: distance rising linearly with longitude from ``near_m`` at the left edge of the ERP to
+  ``ratio`` times that at the right edge: one depth edge, along the seam (the left/right wrap every ERP operator
+  must cut like any other edge), pole to pole, where it meets every distance of the slope.
 - ``ramp(decades)``: the inside of a cube of half-size ``near_m`` whose distance is multiplied by
   10^(decades * t(latitude)), t rising smoothly (cosine) from 0 at ``band_deg`` below the horizon to 1 at
   ``band_deg`` above: no edge at all, a log-distance slope of ``decades * ln 10`` over 2 ``band_deg`` (a ground
@@ -73,6 +76,24 @@ def cliff(ratio: float, width: int = 512, near_m: float = 1.0) -> Scene:
     )
 
 
+def seam_jump(ratio: float = 10.0, width: int = 512, near_m: float = 1.0) -> Scene:
+    """The seam jump (module docstring): ERP ``width`` x ``width // 2``, distance ``near_m * (1 + (ratio - 1) *
+    (lon + pi) / (2 pi))`` at each pixel centre's longitude, a jump of about ``ratio`` across the seam; one hue,
+    whose checker changes cell at the seam (cells 15 and 0), so the colour has its edge there too."""
+    if not (np.isfinite(ratio) and ratio >= 1 and np.isfinite(near_m) and near_m > 0):
+        raise ValueError(f"seam_jump: ratio={ratio!r}, near_m={near_m!r}: expected ratio >= 1 and near_m > 0")
+    height = width // 2
+    u = (np.arange(width) + 0.5) / width  # (lon + pi) / (2 pi) at the pixel centres
+    distance = np.broadcast_to(near_m * (1.0 + (ratio - 1.0) * u), (height, width))
+    return _scene(
+        f"seam-jump-{ratio:g}",
+        f"seam jump: {near_m:g} m at the left edge rising with longitude to {ratio:g} times that at the right",
+        _checker_rgb(height, width, np.zeros((height, width))),
+        distance,
+        {"case": "seam-jump", "ratio": float(ratio), "near_m": near_m},
+    )
+
+
 def ramp(decades: float, width: int = 512, near_m: float = 1.0, band_deg: float = 5.0) -> Scene:
     """The multi-decade ramp (module docstring): distance ``near_m`` (cube) below the band, ``10**decades``
     times that above it, rising smoothly over the ``band_deg`` either side of the horizon."""
@@ -131,6 +152,7 @@ CASES = {
     "cliff-1e2": lambda width=512: cliff(1e2, width),
     "cliff-1e3": lambda width=512: cliff(1e3, width),
     "cliff-1e4": lambda width=512: cliff(1e4, width),
+    "seam-jump": lambda width=512: seam_jump(10.0, width),
     "ramp-4": lambda width=512: ramp(4.0, width, band_deg=3.0),
     "ramp-6": lambda width=512: ramp(6.0, width),
     "horizon-4": lambda width=512: horizon(4.0, width),

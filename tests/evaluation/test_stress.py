@@ -50,7 +50,7 @@ def test_an_unknown_case_is_one_argparse_error(capsys):
 def test_the_cases_build_what_they_say():
     cliff = script.cliff(1e4)(64)
     assert set(np.unique(cliff.distance)) == {1.0, 1e4} and cliff.has_ground_truth
-    seam = script.seam_jump(64)
+    seam = {c.name: c for c in script.CASES}["seam-jump"].build(64)
     assert seam.distance[:, -1].min() / seam.distance[:, 0].max() > 9  # the jump is at the seam
     ramp = script.ramp(4)(64)
     assert ramp.distance.max() / ramp.distance.min() > 1e3
