@@ -4,7 +4,8 @@
 # the paper's tables at the paper's settings (1024 px, 128² labels, 240 labels, 10,000 steps) until the deadline.
 # Prepare on a machine with Open3D and pip, in the repository root (.whl and gpu are git-ignored there):
 #   mkdir -p .whl gpu/cache/lpips; python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 \
-#     --implementation cp --platform manylinux_2_28_x86_64 -d .whl gsplat==1.5.3 dlr-moge==2.0.0 dlr-utils3d==1.3
+#     --implementation cp --platform manylinux_2_28_x86_64 -d .whl gsplat==1.5.3 dlr-moge==2.0.0 dlr-utils3d==1.3 \
+#     plyfile==1.1.3 pyamg==5.4.1    # the machine has neither (panorecon.io.ply, the fusion's multigrid)
 #   panorecon render bedroom --out gpu/bed128 --width 128 --heldout 2 --heldout-res 32
 #   panorecon render bedroom --out gpu/bed512 --width 512 --heldout-res 256
 #   for s in bedroom bathroom library exhibition-hall mountain grassland beach city-plaza; do
