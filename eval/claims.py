@@ -2,7 +2,8 @@
 
     python eval/claims.py benchmarks/tables [--step N] [--markdown] [--suites eval/suites]
 
-Reads ``DIR/table{2,4,5,6,7}/results.csv`` (``panorecon ablate eval/suites/table{2,4,5,6,7}.toml --out DIR``)
+Reads ``DIR/table{2,4,5,6,7}/results.csv`` and ``DIR/table5_population/results.csv`` (``panorecon ablate
+eval/suites/NAME.toml --out DIR/NAME``)
 and, for each claim of the paper's §3, takes the paired difference that the claim is about (run by run on the
 same scene and seed, ``evaluation/stats.py``) on the paper's protocol (pseudo-label PSNR) and on held-out
 views, each with its 95 % interval on these scenes and across new scenes. A claim is **confirmed** when every
@@ -12,8 +13,9 @@ equivalence margin (±0.1 dB unless the suite says otherwise), else **not resolv
 run here (no weights, no CUDA) is ``n/a`` with the reason. Beside each verdict: whether the intervals rule out
 the paper's own difference for the same rows (its figures from the suite's [paper] block, ``eval/suites``;
 "n/a" where the paper has no figure for a row, as for the sim: stand-ins). The verdict column is the paper's
-protocol on these scenes; the new-scenes verdict is in its cell. Prints JSON, or the markdown table with
-``--markdown``. ``--step``: read every run at that training budget (default: the last).
+protocol on these scenes (bold), the new-scenes verdict beside it; a one-seed table (a population of scenes) has
+no interval on these scenes and is judged, and its differences shown, across new scenes. Prints JSON, or the
+markdown table with ``--markdown``. ``--step``: read every run at that training budget (default: the last).
 """
 
 from __future__ import annotations
@@ -53,6 +55,12 @@ CLAIMS = [
         "42.37 vs 42.12 / 42.07 / 42.03 / 41.44",
         "table5",
         [(r, "180", -1) for r in ("120", "240", "300", "360")],
+    ),
+    (
+        "180 pseudo-labels beat 120, on a population of new scenes",
+        "42.37 vs 42.12",
+        "table5_population",
+        [("120", "180", -1)],
     ),
     (
         "Fibonacci 20 views beat the icosahedron's 20",
@@ -154,19 +162,21 @@ def judge(tables: Path, step: int | None = None, suites: Path = SUITES) -> list[
             for which in ("these", "new"):
                 rec[f"verdict_{proto}_{which}"] = _judge([c for c, _ in comps], [s for _, s in comps], which)
                 rec[f"paper_size_{proto}_{which}"] = _paper_size([c for c, _ in comps], which)
-        rec["verdict"] = rec["verdict_pseudo_label_these"]
+        # one seed gives no interval on these scenes: such a table (a population of scenes) is judged across them
+        rec["judged_on"] = "new" if rec["seeds"] == 1 else "these"
+        rec["verdict"] = rec[f"verdict_pseudo_label_{rec['judged_on']}"]
         out.append(rec)
     return out
 
 
-def _range(cells: dict) -> str:
-    """The differences of a claim as 'row −0.12 [−0.20, −0.04]; ...' (these scenes), each with the paper's own
-    difference where it reports one ('paper −0.40'), each equivalent one with its margin ('≡ ±0.1'), and each one
-    neither resolved nor equivalent with the scenes × seeds the statistics layer says would resolve it (80 %
-    power), e.g. '(needs 1 × 12)'."""
+def _range(cells: dict, which: str = "these") -> str:
+    """The differences of a claim as 'row −0.12 [−0.20, −0.04]; ...' (``which``: these or new scenes), each with
+    the paper's own difference where it reports one ('paper −0.40'), each equivalent one with its margin
+    ('≡ ±0.1'), and each one neither resolved nor equivalent with the scenes × seeds the statistics layer says
+    would resolve it (80 % power), e.g. '(needs 1 × 12)'."""
     parts = []
     for label, c in cells.items():
-        t = c["these"]
+        t = c[which]
         if t is None:
             parts.append(f"{label} n/a")
             continue
@@ -176,11 +186,13 @@ def _range(cells: dict) -> str:
         notes = []
         if c["paper"] is not None:
             notes.append(f"paper {c['paper']:+.2f}")
-        if c["equivalent_these"]:
+        if c[f"equivalent_{which}"]:
             notes.append(f"≡ ±{c['margin']:g}")
-        need = c.get("to_resolve_these", "n/a")
-        if c["verdict_these"] == "not resolved" and not c["equivalent_these"] and need not in ("n/a", "resolved"):
+        need = c.get(f"to_resolve_{which}", "n/a")
+        if c[f"verdict_{which}"] == "not resolved" and not c[f"equivalent_{which}"] and need not in ("n/a", "resolved"):
             notes.append(f"needs {need}")
+        if which == "new":
+            notes.append("across new scenes")
         parts.append(text + (f" ({'; '.join(notes)})" if notes else ""))
     return "; ".join(parts)
 
@@ -195,9 +207,11 @@ def markdown(claims: list[dict]) -> str:
         if "pseudo_label" not in c:
             lines.append(f"| {c['claim']} | {c['paper']} | — | {c['verdict']} | — | — | — |")
             continue
+        these, new = c["verdict_pseudo_label_these"], c["verdict_pseudo_label_new"]
+        verdicts = f"**{these}** / {new}" if c["judged_on"] == "these" else f"{these} / **{new}**"
         lines.append(
-            f"| {c['claim']} | {c['paper']} | {_range(c['pseudo_label'])} | **{c['verdict_pseudo_label_these']}** / "
-            f"{c['verdict_pseudo_label_new']} | {c['paper_size_pseudo_label_these']} / "
+            f"| {c['claim']} | {c['paper']} | {_range(c['pseudo_label'], c['judged_on'])} | {verdicts} | "
+            f"{c['paper_size_pseudo_label_these']} / "
             f"{c['paper_size_pseudo_label_new']} | {c['verdict_heldout_these']} / {c['verdict_heldout_new']} | "
             f"{min((x['pairs'] for x in c['pseudo_label'].values()), default=0)} |"
         )

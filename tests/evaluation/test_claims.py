@@ -69,3 +69,22 @@ def test_the_papers_size_inside_the_interval_is_consistent_not_ruled_out(tmp_pat
     (c,) = [c for c in claims.judge(_table7(tmp_path, [-0.30, -0.35, -0.31], scenes="abcd")) if c["table"] == "table7"]
     assert c["verdict"] == "confirmed" and c["paper_size_pseudo_label_these"] == "consistent"
     assert not c["pseudo_label"]["default"]["equivalent_these"]
+
+
+def test_a_one_seed_population_is_judged_across_new_scenes(tmp_path):
+    """Table 5's population (eval/suites/table5_population.toml): one seed, many scenes. No interval exists on
+    these scenes, so the claim is judged, and its difference shown, across new scenes."""
+    rows = []
+    rng = np.random.default_rng(1)
+    for k in range(12):
+        base = 41 + rng.normal()
+        for label, v in (("180", base), ("120", base + 0.25 + 0.05 * rng.normal())):
+            rows.append({"label": label, "scene": f"s{k}", "seed": 0, "psnr_pl": v, "psnr_ho": v - 14})
+    (tmp_path / "table5_population").mkdir()
+    pd.DataFrame(rows).to_csv(tmp_path / "table5_population" / "results.csv", index=False)
+    (c,) = [c for c in claims.judge(tmp_path) if c["table"] == "table5_population"]
+    assert c["judged_on"] == "new" and c["verdict"] == c["verdict_pseudo_label_new"] == "contradicted"
+    assert c["pseudo_label"]["120"]["these"] is None or np.isnan(c["pseudo_label"]["120"]["these"]["low"])
+    line = [x for x in claims.markdown([c]).splitlines() if "population" in x][0]
+    assert "across new scenes" in line and "/ **contradicted** |" in line
+    assert c["paper_size_pseudo_label_new"] == "ruled out"  # the paper's 120 − 180 = −0.25 dB
