@@ -209,7 +209,7 @@ def thin_by_detail(
     return out, {"points": len(index), "points_per_level": per_level}
 
 
-def _erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+def erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """The cloud seen from the origin: per ERP pixel the nearest point's distance [H, W] float64 (inf where no
     point) and colour [H, W, 3] float32."""
     r = np.linalg.norm(pc.xyz.astype(np.float64), axis=1)
@@ -238,7 +238,7 @@ def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float =
     set, so no other pixel can gain one): the work grows with the edges' length, not the image's size."""
     if not (fill_deg >= 0 and jump > 0):
         raise ValueError(f"disocclusion_fill: fill_deg={fill_deg}, jump={jump}: expected fill_deg >= 0, jump > 0")
-    dist, rgb = _erp_zbuffer(pc, height, width)
+    dist, rgb = erp_zbuffer(pc, height, width)
     flat = dist.ravel()
     layer_d = np.full(height * width, np.inf)
     origin = np.full(height * width, -1, np.int64)  # the background pixel whose distance and colour a layer has
@@ -282,7 +282,7 @@ def disocclusion_fill_reference(
     pc: PointCloud, height: int, width: int, fill_deg: float = 10.0, jump: float = 0.1
 ) -> dict[tuple[int, int], tuple[float, tuple]]:
     """``disocclusion_fill`` pixel by pixel, with plain loops: {(row, col): (distance, rgb)} of the layer."""
-    dist, rgb = _erp_zbuffer(pc, height, width)
+    dist, rgb = erp_zbuffer(pc, height, width)
     layer: dict[tuple[int, int], tuple[float, tuple]] = {}
     for _ in range(int(math.ceil(fill_deg / (360.0 / width)))):
         added = {}

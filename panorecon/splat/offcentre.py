@@ -17,6 +17,7 @@ per-point loop it must equal.
 
 from __future__ import annotations
 
+import itertools
 import math
 from types import SimpleNamespace
 
@@ -24,7 +25,7 @@ import numpy as np
 import torch
 
 from ..geometry import PinholeCamera, intrinsics_from_fov, look_at_rotation, sample_erp, viewmat_from_pose
-from ..geometry.sphere import direction_to_erp_pixel
+from .initial import erp_zbuffer
 from .labels import LabelView, reprojection_oracle
 from .model import nearest_neighbour_scale
 
@@ -75,10 +76,6 @@ def _project(xyz: torch.Tensor, spacing: torch.Tensor, camera: PinholeCamera):
     return keep, col, row, z, half
 
 
-def _offsets():
-    return [(dx, dy) for dy in range(-MAX_RADIUS, MAX_RADIUS + 1) for dx in range(-MAX_RADIUS, MAX_RADIUS + 1)]
-
-
 def splat_depth(xyz: np.ndarray, spacing: np.ndarray, camera: PinholeCamera) -> np.ndarray:
     """[h, w] float64 z-depth (the cloud's units) of the nearest of the points ``xyz`` [N, 3] whose footprint
     squares (``spacing`` [N], their distance to their neighbours) reach each pixel of ``camera``; inf where none."""
@@ -89,7 +86,7 @@ def splat_depth(xyz: np.ndarray, spacing: np.ndarray, camera: PinholeCamera) -> 
         camera,
     )
     nearest = torch.full((h * w,), math.inf, dtype=torch.float64)
-    for dx, dy in _offsets():
+    for dy, dx in itertools.product(range(-MAX_RADIUS, MAX_RADIUS + 1), repeat=2):
         sel = half >= max(abs(dx), abs(dy))
         c, r, zs = col[sel] + dx, row[sel] + dy, z[sel]
         inside = (c >= 0) & (c < w) & (r >= 0) & (r < h)
@@ -113,18 +110,11 @@ def splat_depth_reference(xyz, spacing, camera: PinholeCamera) -> np.ndarray:
     return out
 
 
-def erp_distance(xyz: np.ndarray, height: int, width: int) -> np.ndarray:
-    """[height, width] float32: the distance from the centre of the nearest point of ``xyz`` [N, 3] in each ERP
-    pixel (the cloud seen from the centre); NaN where no point falls."""
-    xyz = np.asarray(xyz, np.float64)
-    r = np.linalg.norm(xyz, axis=1)
-    ok = r > 0
-    row, col = direction_to_erp_pixel(xyz[ok] / r[ok, None], height, width)
-    flat = np.clip(np.round(row).astype(np.int64), 0, height - 1) * width + np.round(col).astype(np.int64) % width
-    out = np.full(height * width, np.inf)
-    np.minimum.at(out, flat, r[ok])
-    out[np.isinf(out)] = np.nan
-    return out.reshape(height, width).astype(np.float32)
+def erp_distance(cloud, height: int, width: int) -> np.ndarray:
+    """[height, width] float32: the distance from the centre of the nearest point of ``cloud`` (a ``PointCloud``)
+    in each ERP pixel (``initial.erp_zbuffer``: the cloud seen from the centre); NaN where no point falls."""
+    dist, _ = erp_zbuffer(cloud, height, width)
+    return np.where(np.isinf(dist), np.nan, dist).astype(np.float32)
 
 
 def warp_panorama(rgb: np.ndarray, distance: np.ndarray, xyz, spacing, camera: PinholeCamera):
@@ -157,7 +147,7 @@ def offcentre_labels(
     if n == 0:
         return []
     spacing = nearest_neighbour_scale(cloud.xyz)
-    distance = erp_distance(cloud.xyz, *panorama.shape[:2])
+    distance = erp_distance(cloud, *panorama.shape[:2])
     views = []
     for cam in offcentre_cameras(cloud.xyz, DRAWS * n, size, fov_deg, radius, seed):
         rgb, mask = warp_panorama(panorama, distance, cloud.xyz, spacing, cam)

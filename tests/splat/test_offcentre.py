@@ -49,7 +49,7 @@ def test_with_the_true_geometry_the_warp_is_the_held_out_oracle(bedroom):
     truth's cloud, on the held-out cameras, it gives the oracle's colours on (almost) the oracle's pixels."""
     cloud = _true_cloud(bedroom)
     spacing = nearest_neighbour_scale(cloud.xyz)
-    distance = oc.erp_distance(cloud.xyz, *bedroom.rgb.shape[:2])
+    distance = oc.erp_distance(cloud, *bedroom.rgb.shape[:2])
     np.testing.assert_allclose(distance, bedroom.distance, rtol=1e-5)  # one point per ERP pixel, its own
     for v in make_heldout_views(bedroom, 3, 32, 60.0, seed=0):
         rgb, mask = oc.warp_panorama(bedroom.rgb, distance, cloud.xyz, spacing, v.camera)
