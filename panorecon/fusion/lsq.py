@@ -92,10 +92,10 @@ class FusionConfig:
     # of such an edge (warp.depth_edge_pixels, upsample.snap_to_side); None: off
     edge_jump: float | None = math.log(1.5)
     # view pixels within this many pixels of such an edge whose step to a neighbour is above half edge_jump are
-    # part of it (a teacher's blur spreads a jump over a few pixels; sim:relative's 1.5 px: 3); 0: edge_jump only.
-    # Off by default: 3 stops the seam-jump stress case's flying points (0.47 % -> 0.01 %) but cuts a beach's far
-    # ground near the horizon (quick suite: beach pseudo-label -1.37 dB, completeness 1.20 -> 1.79 m)
-    edge_reach: int = 0
+    # part of it where flat pixels on both sides in the same window lie more than edge_jump apart: a teacher's blur
+    # spreads a jump over a few pixels (sim:relative's 1.5 px: 3), a grazing surface keeps edge_jump's test
+    # (warp.depth_edge_pixels); 0: edge_jump only
+    edge_reach: int = 3
     resolution: str = "views"  # "views": solve up to the level the views resolve, then guided upsampling; "full"
     upsample_radius: int = 2  # guided upsampling window radius, solve-level pixels (upsample.py)
     upsample_eps: float = 1e-4  # guided upsampling regularisation, colour variance (colour in [0, 1])

@@ -114,15 +114,19 @@ def warp_to_erp(
 
 def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1, reach: int = 0) -> np.ndarray:
     """[h, w] bool: the valid view pixels whose log distance differs from one of their 8 valid neighbours by more
-    than ``jump`` (both pixels of every such pair), with ``reach`` > 0 also those that differ by more than
-    ``jump / 2`` within ``reach`` pixels (Chebyshev) of the first, all dilated to ``px`` pixels (Chebyshev).
+    than ``jump`` (both pixels of every such pair), with ``reach`` > 0 also the steps of a blurred jump (below),
+    all dilated to ``px`` pixels (Chebyshev).
 
     Such a pixel may straddle a depth edge: a ray through it can belong to either side, and a read or a blend
     there can be anything in between. A pixel put on the wrong side of (or blended across) a step of at most
     ``jump`` is off by less than that; a smooth slope steeper than ``jump`` per pixel (a floor within a degree of
-    the horizon, a teacher's blurred edge) is flagged too: the view does not resolve it. A teacher's blur spreads
-    a jump over a few pixels, each step holding part of it: next to a step over ``jump`` (``reach``), a step over
-    half of it is taken as part of the same edge, while a slope away from any edge keeps the ``jump`` test."""
+    the horizon) is flagged too: the view does not resolve it. A teacher's blur spreads a jump over a few pixels,
+    each step holding part of it. With ``reach``, a step over ``jump / 2`` within ``reach`` pixels (Chebyshev) of
+    a flagged pixel goes with it where the same window holds flat pixels (steps at most ``jump / 2``) on both
+    sides of it, more than ``jump`` apart: the flanks of one blurred jump. A grazing surface's steps grow all the
+    way to its far end (the ground at the horizon, a ramp over decades), with nothing flat beyond them, and keep
+    the ``jump`` test: its points are in the right direction and lose little in the wrong distance, while a
+    blurred jump's middle lies between two surfaces, on neither."""
     h, w = log_view.shape
     pad = np.full((h + 2, w + 2), np.nan)
     pad[1:-1, 1:-1] = log_view
@@ -135,7 +139,14 @@ def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1, reach: int
     edge = step > jump
     if reach > 0 and edge.any():
         near = cv2.dilate(edge.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
-        edge |= near & (step > jump / 2)
+        window = np.ones((4 * reach + 1, 4 * reach + 1), np.uint8)
+        flat = np.isfinite(log_view) & (step <= jump / 2)
+        # OpenCV's float32 morphology (log distances need no more); back in float64, as its borders are +-FLT_MAX
+        far = cv2.dilate(np.where(flat, log_view, -np.inf).astype(np.float32), window).astype(np.float64)
+        close = cv2.erode(np.where(flat, log_view, np.inf).astype(np.float32), window).astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            between = (far - close > jump) & (log_view > close) & (log_view < far)
+        edge |= near & between & (step > jump / 2)
     if px > 1:
         edge = cv2.dilate(edge.astype(np.uint8), np.ones((2 * px - 1, 2 * px - 1), np.uint8)).astype(bool)
     return edge & np.isfinite(log_view)
