@@ -122,8 +122,9 @@ def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1, reach: int
     ``jump`` is off by less than that; a smooth slope steeper than ``jump`` per pixel (a floor within a degree of
     the horizon) is flagged too: the view does not resolve it. A teacher's blur spreads a jump over a few pixels,
     each step holding part of it. With ``reach``, a step over ``jump / 2`` within ``reach`` pixels (Chebyshev) of
-    a flagged pixel goes with it where the same window holds flat pixels (steps at most ``jump / 2``) on both
-    sides of it, more than ``jump`` apart: the flanks of one blurred jump. A grazing surface's steps grow all the
+    a flagged pixel goes with it where the pixels within ``2 * reach`` of it hold flat ones (steps at most
+    ``jump / 2``) on both sides of its value, more than ``2 * jump`` apart: the flanks of one blurred jump that
+    a blend could put more than ``jump`` off both sides of it. A grazing surface's steps grow all the
     way to its far end (the ground at the horizon, a ramp over decades), with nothing flat beyond them, and keep
     the ``jump`` test: its points are in the right direction and lose little in the wrong distance, while a
     blurred jump's middle lies between two surfaces, on neither."""
@@ -145,7 +146,7 @@ def depth_edge_pixels(log_view: np.ndarray, jump: float, px: int = 1, reach: int
         far = cv2.dilate(np.where(flat, log_view, -np.inf).astype(np.float32), window).astype(np.float64)
         close = cv2.erode(np.where(flat, log_view, np.inf).astype(np.float32), window).astype(np.float64)
         with np.errstate(invalid="ignore"):
-            between = (far - close > jump) & (log_view > close) & (log_view < far)
+            between = (far - close > 2 * jump) & (log_view > close) & (log_view < far)
         edge |= near & between & (step > jump / 2)
     if px > 1:
         edge = cv2.dilate(edge.astype(np.uint8), np.ones((2 * px - 1, 2 * px - 1), np.uint8)).astype(bool)

@@ -510,19 +510,36 @@ class TestDepthEdges:
     def test_seam_jump_leaves_no_flying_points(self):
         self.held("seam-jump")
 
-    @pytest.mark.parametrize("case", ["seam-jump", "ramp-6", "cliff-10"])
+    @pytest.mark.parametrize("case", ["seam-jump", "cliff-10"])
     def test_a_blurring_teacher_leaves_no_flying_points(self, case):
-        """``sim:relative`` blurs each view's depth by 1.5 px, spreading a jump over several view pixels: the steps of
-        more than half ``edge_jump`` within ``FusionConfig.edge_reach`` pixels of an edge are cut with it. Without
-        them (``edge_reach=0``, the default, 512 px) the seam jump flew 0.47 % near the poles, where it meets the
-        slope's every distance, and ramp-6 0.074 %."""
+        """``sim:relative`` blurs each view's depth by 1.5 px, spreading a jump over several view pixels: the flank
+        steps of more than half ``edge_jump`` within ``FusionConfig.edge_reach`` pixels of an edge are cut with it
+        (the default). Without them (``edge_reach=0``, 512 px) the seam jump flew 0.47 % near the poles, where it
+        meets the slope's every distance."""
         from panorecon.fusion import FusionConfig
         from panorecon.scenes.stress import CASES
         from panorecon.sources import run_source
 
-        _, rep = run_source(CASES[case](512), "fibonacci", "sim:relative", fusion_config=FusionConfig(edge_reach=3))
+        assert FusionConfig().edge_reach == 3
+        _, rep = run_source(CASES[case](512), "fibonacci", "sim:relative")
         assert rep["depth"]["flying"] <= self.MOST and rep["points"]["flying"] <= self.MOST, rep["depth"]
         assert rep["depth"]["pixels"] >= 0.9 * 512 * 256
+
+    def test_a_blurring_teacher_keeps_a_ground_plane_to_the_horizon(self):
+        """A ground plane seen to the horizon is no blurred jump: its steps grow to the far end with nothing flat
+        beyond, so ``edge_reach`` cuts no more of it than the ``edge_jump`` test alone (a reach without the
+        two-sided test cut a beach's far ground: pseudo-label PSNR -1.37 dB on the quick suite)."""
+        from panorecon.fusion import FusionConfig
+        from panorecon.scenes.stress import CASES
+        from panorecon.sources import run_source
+
+        scene = CASES["horizon-4"](512)
+        kept = {
+            r: run_source(scene, "fibonacci", "sim:relative", fusion_config=FusionConfig(edge_reach=r))[1]["depth"]
+            for r in (0, 3)
+        }
+        assert kept[3]["pixels"] >= kept[0]["pixels"] - 64, (kept[0]["pixels"], kept[3]["pixels"])
+        assert kept[3]["flying"] <= self.MOST
 
     def test_cliff_ratio_1e4_throws_flying_points_without_the_edge_handling(self):
         """What the edge handling removes: blends and wrong-side pixels at the cliff (the measure sees them)."""
@@ -547,20 +564,27 @@ def test_depth_edge_pixels_flag_both_sides_of_a_step_and_nothing_else():
     assert depth_edge_pixels(step, jump, px=2)[:, 6:10].all()  # dilated
 
 
-def test_depth_edge_pixels_reach_takes_a_blurred_jumps_smaller_steps_with_it_and_leaves_slopes_alone():
-    """A jump a teacher's blur spread over four pixels (steps 0.3, 0.5, 0.3 around it: only one above ln 1.5):
-    with ``reach`` its steps above half the jump are part of the edge; a slope of 0.3 per pixel (above half,
-    below the jump) is no edge, with or without ``reach``, unless an edge lies within ``reach`` of it."""
+def test_depth_edge_pixels_reach_takes_a_blurred_jumps_flanks_and_leaves_grazing_slopes_alone():
+    """A jump a teacher's blur spread over five pixels (steps 0.1, 0.3, 0.5, 0.3, 0.1: only the middle one above
+    ln 1.5), flat on both sides: with ``reach`` its steps above half the jump are part of the edge. A grazing
+    slope whose steps grow to its far end (log distance -ln(t), as a ground plane towards the horizon, then
+    nothing valid) keeps the ``jump`` test with ``reach``, as does a steep slope meeting an edge with nothing flat
+    on one side."""
     from panorecon.fusion.warp import depth_edge_pixels
 
     jump = math.log(1.5)
     blurred = np.cumsum([0.0] * 8 + [0.1, 0.3, 0.5, 0.3, 0.1] + [0.0] * 7)[None].repeat(6, 0)
     assert np.array_equal(np.flatnonzero(depth_edge_pixels(blurred, jump)[0]), [9, 10])
     assert np.array_equal(np.flatnonzero(depth_edge_pixels(blurred, jump, reach=3)[0]), [8, 9, 10, 11])
+    assert np.array_equal(np.flatnonzero(depth_edge_pixels(blurred, jump, reach=1)[0]), [9, 10])  # no flat side
+    grazing = np.full((6, 24), np.nan)
+    grazing[:, :20] = -np.log(np.arange(20.0, 0.0, -1.0))  # steps ln(t / (t - 1)): rising to ln 2 at the end
+    assert np.array_equal(depth_edge_pixels(grazing, jump, reach=3), depth_edge_pixels(grazing, jump))
+    assert depth_edge_pixels(grazing, jump)[0, 18:20].all()
     slope = 0.3 * np.arange(20.0)[None].repeat(6, 0)
     assert not depth_edge_pixels(slope, jump, reach=3).any()
-    slope[:, 15:] += 1.0  # an edge between columns 14 and 15: the slope within 3 pixels of it goes with it
-    assert np.array_equal(np.flatnonzero(depth_edge_pixels(slope, jump, reach=3)[0]), np.arange(11, 19))
+    slope[:, 15:] += 1.0  # an edge between columns 14 and 15, no flat pixel anywhere: the slope is kept
+    assert np.array_equal(np.flatnonzero(depth_edge_pixels(slope, jump, reach=3)[0]), [14, 15])
 
 
 @settings(max_examples=40, deadline=None)

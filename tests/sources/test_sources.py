@@ -103,9 +103,9 @@ def test_sky_gives_no_points():
     pc, rep = run_source(plaza, "fibonacci", "sim:clean")
     ground = ~plaza.sky
     # one point per seen non-sky pixel, none for the sky; at 32 px views the pixels at depth edges that no view
-    # sees off an edge (fusion.warp.depth_edge_pixels) are 11 % of the ground (16 % with FusionConfig.edge_reach
-    # 3): no point there, no flying point
-    assert 0.85 * ground.sum() <= len(pc) <= ground.sum() and rep["depth"]["flying"] < 1e-3
+    # sees off an edge (fusion.warp.depth_edge_pixels) are 15 % of the ground (11 % with FusionConfig.edge_reach
+    # 0): no point there, no flying point
+    assert 0.8 * ground.sum() <= len(pc) <= ground.sum() and rep["depth"]["flying"] < 1e-3
     # every point lies along a non-sky pixel's ray, at most a few times the farthest true distance
     r, c = direction_to_erp_pixel(pc.xyz / np.linalg.norm(pc.xyz, axis=1, keepdims=True), *plaza.sky.shape)
     rows = np.clip(np.rint(r).astype(int), 0, plaza.height - 1)
