@@ -19,7 +19,8 @@ case, the method's source trained for a short budget (``--train-iters`` steps at
 labels, no held-out views, ``--init-detail``; ``splat.trainer.train``): pseudo-label PSNR, Gaussians, seconds,
 peak MB. A case a source cannot run, or runs and gets no point from (all sky), is a row with its reason.
 ``--quick``: four cases at 64 px, two sources, 5 training steps (seconds; the test's mode). Prints JSON (machine,
-versions, commit) and a markdown table.
+versions, commit), a markdown table of every case and source (``table``) and one line per case (``summary``: the
+method's columns beside the worst over the sources).
 """
 
 from __future__ import annotations
@@ -287,6 +288,57 @@ def _fmt(v, spec: str) -> str:
     return format(v, spec) if isinstance(v, (int, float)) and math.isfinite(v) else "n/a"
 
 
+LAYOUTS = ("fibonacci", "icosahedral", "latlong", "cube")
+
+
+def summary(rows: list[dict]) -> str:
+    """Markdown, one line per case: the method's (fibonacci) errors, flying % and WS flying %, its seconds and peak
+    MB, AbsRel's range over every source that ran, the worst flying % over the layouts, erp-direct's and
+    moge-merge's flying %, and the training row; a case no source ran on gives its reason."""
+    head = (
+        "| case | method AbsRel | δ1 | flying % | WS flying % | AbsRel over sources (min–max) | flying % over "
+        "layouts (max) | flying % erp-direct / moge-merge | points s (method) | peak MB | PSNR (train) | Gaussians "
+        "| train s |\n"
+        + "|---" * 13
+        + "|\n"
+    )
+
+    def pct(p: dict | None) -> str:
+        return _fmt(100 * p["flying"], ".3f") if p and "flying" in p else "n/a"
+
+    lines = []
+    for r in rows:
+        pts, tr = r["points"], r["train"]
+        ran = {s: p for s, p in pts.items() if "unavailable" not in p}
+        m = pts.get("fibonacci", {})
+        name = f"{r['case']} ({r['width']} px)"
+        if "unavailable" in m:
+            lines.append(f"| {name} | {m['unavailable'][:90]} |" + " |" * 11)
+            continue
+        if "flying" not in m:  # ran, but no truth to measure against
+            errors = [m.get("depth", "n/a")[:60]] + [""] * 7
+        else:
+            rel = [p["abs_rel"] for p in ran.values() if p.get("abs_rel") is not None]
+            layouts = [100 * ran[s]["flying"] for s in LAYOUTS if s in ran and "flying" in ran[s]]
+            errors = [
+                _fmt(m["abs_rel"], ".3f"),
+                _fmt(m["delta1"], ".3f"),
+                pct(m),
+                _fmt(100 * m["ws_flying"], ".3f"),
+                f"{min(rel):.3f}–{max(rel):.3f}",
+                _fmt(max(layouts), ".3f"),
+                f"{pct(pts.get('erp-direct'))} / {pct(pts.get('moge-merge'))}",
+            ]
+        train = (
+            [_fmt(tr.get("psnr"), ".2f"), f"{tr['gaussians']:,}", _fmt(tr.get("train_seconds"), ".1f")]
+            if "unavailable" not in tr
+            else ["", "", ""]
+        )
+        cells = [name, *errors, _fmt(m["seconds"], ".1f"), _fmt(m["peak_mb"], ".0f"), *train]
+        lines.append("| " + " | ".join(cells) + " |")
+    return head + "\n".join(lines) + "\n"
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: one line per case and source (points columns), the training columns on the method's line."""
     head = (
@@ -368,6 +420,7 @@ def main(argv=None) -> dict:
             "init_detail": TrainConfig(**train).init_detail,
             "flying_threshold": FLYING_REL,
             "rows": rows,
+            "summary": summary(rows),
             "table": table(rows),
         }
 

@@ -39,6 +39,14 @@ def test_quick_mode_gives_every_row_and_its_table(tmp_path):
     assert "unavailable" in rows["all-sky"]["train"]
     table = (tmp_path / "t.md").read_text()
     assert table == out["table"] and table.count("\n") == 2 + sum(len(r["points"]) for r in out["rows"])
+    lines = out["summary"].splitlines()  # one line per case: the method's columns and the worst over sources
+    assert len(lines) == 2 + len(out["rows"]) and "gave no point" in next(x for x in lines if x.startswith("| all-sky"))
+    cells = [c.strip() for c in next(x for x in lines if x.startswith("| cliff-100")).strip("|").split("|")]
+    cliff = rows["cliff-100"]["points"]
+    assert cells[3] == f"{100 * cliff['fibonacci']['flying']:.3f}" and cells[6] == cells[3]  # one layout ran
+    assert cells[7] == f"{100 * cliff['erp-direct']['flying']:.3f} / n/a"  # moge-merge did not run
+    low, high = sorted(p["abs_rel"] for p in cliff.values())
+    assert cells[5] == f"{low:.3f}–{high:.3f}"
 
 
 def test_an_unknown_case_is_one_argparse_error(capsys):
