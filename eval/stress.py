@@ -298,9 +298,7 @@ def summary(rows: list[dict]) -> str:
     head = (
         "| case | method AbsRel | δ1 | flying % | WS flying % | AbsRel over sources (min–max) | flying % over "
         "layouts (max) | flying % erp-direct / moge-merge | points s (method) | peak MB | PSNR (train) | Gaussians "
-        "| train s |\n"
-        + "|---" * 13
-        + "|\n"
+        "| train s |\n" + "|---" * 13 + "|\n"
     )
 
     def pct(p: dict | None) -> str:
