@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from ..geometry import PointCloud, erp_to_perspective
-from ..geometry.sphere import direction_to_erp_pixel, erp_directions
+from ..geometry.sphere import direction_to_erp_pixel, erp_pixel_to_lonlat, lonlat_to_direction
 
 
 def sky_environment(scene) -> np.ndarray | None:
@@ -249,17 +249,29 @@ def thin_by_detail(
 
 def erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """The cloud seen from the origin: per ERP pixel the nearest point's distance [H, W] float64 (inf where no
-    point) and colour [H, W, 3] float32."""
-    r = np.linalg.norm(pc.xyz.astype(np.float64), axis=1)
-    ok = r > 0
-    rows, cols = direction_to_erp_pixel(pc.xyz[ok].astype(np.float64), height, width)
-    ri = np.clip(np.rint(rows).astype(np.int64), 0, height - 1)
-    ci = np.rint(cols).astype(np.int64) % width
-    far_first = np.argsort(-r[ok], kind="stable")  # the nearest point of a pixel is written last
+    point) and colour [H, W, 3] float32 (of equally near points, the last in the cloud's order). Each point's
+    pixel and distance are computed from float64 coordinates ``SPREAD_CHUNK`` points at a time and written far
+    to near in chunks of that order: the full-size arrays are the distances, flat pixel indices and the order
+    (an 8K cloud's float64 [N, 3] copies would be 805 MB each)."""
+    n = len(pc)
+    r, pixel = np.empty(n), np.empty(n, np.int64)
+    for i in range(0, n, SPREAD_CHUNK):
+        x = pc.xyz[i : i + SPREAD_CHUNK].astype(np.float64)
+        r[i : i + SPREAD_CHUNK] = np.linalg.norm(x, axis=1)
+        rows, cols = direction_to_erp_pixel(x, height, width)  # a point at the origin: arbitrary, dropped below
+        pixel[i : i + SPREAD_CHUNK] = np.clip(np.rint(rows).astype(np.int64), 0, height - 1) * width + (
+            np.rint(cols).astype(np.int64) % width
+        )
+    ok = np.flatnonzero(r > 0)
+    far_first = ok[np.argsort(-r[ok], kind="stable")]  # the nearest point of a pixel is written last
+    del ok
     dist = np.full((height, width), np.inf)
     rgb = np.zeros((height, width, 3), np.float32)
-    dist[ri[far_first], ci[far_first]] = r[ok][far_first]
-    rgb[ri[far_first], ci[far_first]] = pc.rgb[ok][far_first]
+    flat_d, flat_rgb = dist.reshape(-1), rgb.reshape(-1, 3)
+    for i in range(0, len(far_first), SPREAD_CHUNK):  # in order, chunk after chunk: the last write still wins
+        o = far_first[i : i + SPREAD_CHUNK]
+        flat_d[pixel[o]] = r[o]
+        flat_rgb[pixel[o]] = pc.rgb[o]
     return dist, rgb
 
 
@@ -312,7 +324,10 @@ def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float =
         layer_d[t], origin[t] = v, o
         sources, source_d, source_origin = t, v, o
     at = np.flatnonzero(np.isfinite(layer_d))
-    xyz = erp_directions(height, width).reshape(-1, 3)[at] * layer_d[at][:, None]
+    # the layer pixels' directions only (erp_directions' values there; the whole grid is 805 MB at 8K)
+    rows, cols = np.divmod(at, width)
+    xyz = lonlat_to_direction(*erp_pixel_to_lonlat(rows.astype(np.float64), cols.astype(np.float64), height, width))
+    xyz *= layer_d[at][:, None]
     return PointCloud(xyz.astype(np.float32), rgb.reshape(-1, 3)[origin[at]])
 
 
