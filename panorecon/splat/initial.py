@@ -234,6 +234,8 @@ def thin_by_detail(
         keep.append(kept)
         normals[kept] = spread["normal"][site[kept]]
         per_level[level] = len(kept)
+        del site, cos, spread, smooth, mine
+    del lon, lat  # not needed below: the uniform thinning's arrays take their place
     rest = np.flatnonzero(~taken)
     w = _cos_latitude_weight(pc.xyz)
     n_rest = len(rest) if len(pc) <= n_points else int(round(n_points * w[rest].sum() / w.sum()))
@@ -306,13 +308,17 @@ def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float =
     for _ in range(int(math.ceil(fill_deg / (360.0 / width)))):
         targets, values, origins = [], [], []
         for k in range(4):  # target t sees source s as its neighbour (1, 0, 3, 2)[k]: up first, as the rule reads
-            t = neighbour(sources, (1, 0, 3, 2)[k])
-            ok = t >= 0
-            t_ok = np.where(ok, t, 0)
-            ok &= np.isfinite(flat[t_ok]) & ~np.isfinite(layer_d[t_ok]) & (source_d > flat[t_ok] * (1 + jump))
-            targets.append(t[ok])
-            values.append(source_d[ok])
-            origins.append(source_origin[ok])
+            # SPREAD_CHUNK sources at a time (the first step has every surface pixel, 33.5M at 8K), in order: the
+            # lists come out as one piece would make them
+            for i in range(0, len(sources), SPREAD_CHUNK):
+                sd = source_d[i : i + SPREAD_CHUNK]
+                t = neighbour(sources[i : i + SPREAD_CHUNK], (1, 0, 3, 2)[k])
+                ok = t >= 0
+                t_ok = np.where(ok, t, 0)
+                ok &= np.isfinite(flat[t_ok]) & ~np.isfinite(layer_d[t_ok]) & (sd > flat[t_ok] * (1 + jump))
+                targets.append(t[ok])
+                values.append(sd[ok])
+                origins.append(source_origin[i : i + SPREAD_CHUNK][ok])
         t, v, o = np.concatenate(targets), np.concatenate(values), np.concatenate(origins)
         if not len(t):
             break

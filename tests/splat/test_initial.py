@@ -230,3 +230,22 @@ def test_directions_of_some_pixels_are_erp_directions_values_to_the_bit():
     rows, cols = np.divmod(at, W)
     some = lonlat_to_direction(*erp_pixel_to_lonlat(rows.astype(np.float64), cols.astype(np.float64), H, W))
     np.testing.assert_array_equal(some, erp_directions(H, W).reshape(-1, 3)[at])
+
+
+def test_fill_in_chunks_of_sources_equals_one_piece(monkeypatch):
+    import panorecon.splat.initial as initial
+
+    H, W = 24, 48
+    rng = np.random.default_rng(5)
+    dist = np.full((H, W), 8.0)
+    for _ in range(6):  # nested boxes: ties between neighbours, layers over several steps
+        r, c = rng.integers(0, H - 4), rng.integers(0, W)
+        dist[r : r + rng.integers(2, 8), (c + np.arange(rng.integers(2, 12))) % W] = rng.choice([1.0, 2.0, 4.0])
+    dist[:2] = np.inf
+    pc, _ = erp_cloud(dist, 5)
+    whole = initial.disocclusion_fill(pc, H, W, 40.0)
+    monkeypatch.setattr(initial, "SPREAD_CHUNK", 37)
+    chunked = initial.disocclusion_fill(pc, H, W, 40.0)
+    assert len(whole) > 50
+    np.testing.assert_array_equal(chunked.xyz, whole.xyz)
+    np.testing.assert_array_equal(chunked.rgb, whole.rgb)
