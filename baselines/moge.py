@@ -25,6 +25,36 @@ from . import BaselineUnavailableError
 
 INSTALL = "pip install --no-deps dlr-moge==2.0.0 dlr-utils3d==1.3 (the moge extra)"
 
+# MoGe's merge_panorama_depth keeps, at its finest level (the panorama's own size), full-size float64 ray
+# directions, per view its gradient, Laplacian and mask maps (all 12 kept, then stacked), and a sparse
+# least-squares system of about 9 non-zeros per pixel with LSMR's vectors: its peak grows with the ERP's pixels.
+# Peak resident memory above the scene (VmHWM less the RSS before the row), through run_source on the bedroom with
+# sim:relative: 1024 x 512: 338 MB (45.6 s merging), 2048 x 1024: 1595 MB (91 s), 4096 x 2048: 6870 MB (still in
+# its finest LSMR after 6.5 min of CPU when stopped). Per ERP megapixel: 645, 761, 820 MB; the largest is used.
+MERGE_MB_PER_MEGAPIXEL = 820.0
+MERGE_MEASURED = "measured 338 / 1595 / 6870 MB at 1024 / 2048 / 4096 px wide, extrapolated linearly"
+
+
+def merge_memory_mb(height: int, width: int) -> float:
+    """The peak memory (MB) MoGe's merge is expected to take on a height x width ERP: MERGE_MB_PER_MEGAPIXEL times
+    its megapixels (the measurements above, extrapolated linearly)."""
+    return MERGE_MB_PER_MEGAPIXEL * height * width / 1e6
+
+
+def check_memory(scene) -> None:
+    """BaselineUnavailableError ('n/a: ...', before any work) when MoGe's merge on this scene's ERP would need more
+    memory than ``io.memory_budget_mb`` (MemAvailable, or $PANORECON_MEMORY_BUDGET_MB) leaves: MoGe's own code is
+    run as it is, never re-implemented or run on a smaller panorama than asked."""
+    from panorecon.io import memory_budget_mb
+
+    need, budget = merge_memory_mb(scene.height, scene.width), memory_budget_mb()
+    if budget is not None and need > budget:
+        raise BaselineUnavailableError(
+            f"n/a: moge-merge at {scene.width} x {scene.height}: MoGe's merge_panorama_depth would need about "
+            f"{need / 1024:.1f} GB ({MERGE_MB_PER_MEGAPIXEL:.0f} MB per ERP megapixel, {MERGE_MEASURED}), more "
+            f"than the {budget / 1024:.1f} GB available (io.memory_budget_mb)"
+        )
+
 
 def moge_panorama():
     """MoGe's ``moge.utils.panorama`` module, or BaselineUnavailableError saying what to install."""
@@ -106,3 +136,6 @@ def moge_merge(scene, teacher, views=None, fusion_config=None, view_size=None):
         "view_depths": vds,
     }
     return pc, seconds, info
+
+
+moge_merge.check = check_memory  # before any work (sources.check_source)

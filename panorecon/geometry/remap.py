@@ -30,18 +30,26 @@ def pad_erp(erp: np.ndarray, pad: int = _PAD) -> np.ndarray:
         raise ValueError(f"ERP width {W} must be even to continue rows across the poles")
     if pad > H:
         raise ValueError(f"ERP of height {H} is too small to pad by {pad} rows")
-    shifted = np.roll(erp, W // 2, axis=1)  # shifted[:, c] = erp[:, c - W/2] == erp[:, c + W/2]
-    top = shifted[:pad][::-1]
-    bottom = shifted[-pad:][::-1]
-    tall = np.concatenate([top, erp, bottom], axis=0)
-    return np.concatenate([tall[:, -pad:], tall, tall[:, :pad]], axis=1)
+    # one output array; only the pad rows are rolled (shifted[:, c] = erp[:, c - W/2] == erp[:, c + W/2]), so the
+    # extra memory is the padded copy alone, not three full-size intermediates
+    out = np.empty((H + 2 * pad, W + 2 * pad) + erp.shape[2:], erp.dtype)
+    tall = out[:, pad : pad + W]
+    tall[:pad] = np.roll(erp[:pad], W // 2, axis=1)[::-1]
+    tall[pad : pad + H] = erp
+    tall[pad + H :] = np.roll(erp[H - pad :], W // 2, axis=1)[::-1]
+    out[:, :pad] = tall[:, W - pad :]
+    out[:, pad + W :] = tall[:, :pad]
+    return out
 
 
-def sample_erp(erp: np.ndarray, directions: np.ndarray, interpolation: str = "linear") -> np.ndarray:
+def sample_erp(
+    erp: np.ndarray, directions: np.ndarray, interpolation: str = "linear", padded: np.ndarray | None = None
+) -> np.ndarray:
     """Sample an ERP image [H, W, ...] along unit directions [h, w, 3] -> [h, w, ...] (same dtype).
 
     Interpolation happens in the image's own dtype; float images may hold NaN, which then spreads
-    only to samples that touch it.
+    only to samples that touch it. ``padded``: ``pad_erp(erp)`` when the caller already has it (a caller
+    sampling one large map in chunks pads it once).
     """
     H, W = erp.shape[:2]
     rows, cols = direction_to_erp_pixel(directions.reshape(-1, 3), H, W)
@@ -54,7 +62,7 @@ def sample_erp(erp: np.ndarray, directions: np.ndarray, interpolation: str = "li
     map_x[:n] = cols + _PAD
     map_y[:n] = rows + _PAD
     out = cv2.remap(
-        pad_erp(erp),
+        pad_erp(erp) if padded is None else padded,
         map_x.reshape(-1, 4096),
         map_y.reshape(-1, 4096),
         _interp_flag(interpolation),

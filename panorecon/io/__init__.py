@@ -12,7 +12,7 @@ from .files import (
     write_image,
     write_json,
 )
-from .process import peak_rss_mb, reset_peak_rss, window_peak_rss_mb
+from .process import memory_budget_mb, peak_rss_mb, reset_peak_rss, window_peak_rss_mb
 
 __all__ = [
     "atomic_write",
@@ -25,6 +25,7 @@ __all__ = [
     "save_npy",
     "write_json",
     "PanoreconInputError",
+    "memory_budget_mb",
     "peak_rss_mb",
     "reset_peak_rss",
     "window_peak_rss_mb",

@@ -33,3 +33,25 @@ def window_peak_rss_mb() -> float:
     except OSError:
         pass
     return peak_rss_mb()
+
+
+MEMORY_BUDGET_ENV = "PANORECON_MEMORY_BUDGET_MB"
+
+
+def memory_budget_mb() -> float | None:
+    """The memory (MB) a stage that knows its own need may still take: ``$PANORECON_MEMORY_BUDGET_MB`` when set,
+    else the system's MemAvailable (/proc/meminfo, the memory other processes leave, as the kernel estimates it);
+    None where neither is known."""
+    import os
+
+    env = os.environ.get(MEMORY_BUDGET_ENV)
+    if env:
+        return float(env)
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None

@@ -42,9 +42,12 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
             "scale": float("nan"),
             "align": align,
         }
-    p, t = pred[ok].astype(np.float64), truth[ok].astype(np.float64)
+    # the compared pixels in their own dtype (float32 maps: half a float64 copy); every product, ratio and sum
+    # below is float64, chunk by chunk
+    p, t = pred[ok], truth[ok]
     extra = {}
     if align == "inverse-affine":
+        p, t = p.astype(np.float64), t.astype(np.float64)
         A = np.stack([1.0 / p, np.ones_like(p)], 1)
         scale, shift = np.linalg.lstsq(A, 1.0 / t, rcond=None)[0]
         inv = scale / p + shift
@@ -63,12 +66,12 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
         p, t = 1.0 / inv[keep], t[keep]
         scale, extra = 1.0 / float(scale), {"shift": float(shift)}
     else:
-        scale = float(np.median(t / p)) if align == "median" else 1.0
+        scale = _median_ratio(t, p) if align == "median" else 1.0
     # sums over chunks of float64 temporaries (full-size maps at 8K would need several 268 MB ones at once)
     rel, sq, d1, fly = 0.0, 0.0, 0, 0
     for i in range(0, len(p), METRIC_CHUNK):
-        pc = p[i : i + METRIC_CHUNK] * (1.0 if align == "inverse-affine" else scale)
-        tc = t[i : i + METRIC_CHUNK]
+        pc = p[i : i + METRIC_CHUNK].astype(np.float64) * (1.0 if align == "inverse-affine" else scale)
+        tc = t[i : i + METRIC_CHUNK].astype(np.float64)
         r = np.abs(pc - tc) / tc
         rel += float(np.sum(r))
         sq += float(np.sum((pc - tc) ** 2))
@@ -84,6 +87,15 @@ def depth_metrics(pred: np.ndarray, truth: np.ndarray, align: str = "median", ma
         "align": align,
         **extra,
     }
+
+
+def _median_ratio(t: np.ndarray, p: np.ndarray) -> float:
+    """median(t / p) in float64 (``np.median``'s value), the ratios written chunk by chunk into one float64 array
+    that the median then partitions in place (no float64 copies of t and p, no copy inside the median)."""
+    ratio = np.empty(len(t), np.float64)
+    for i in range(0, len(t), METRIC_CHUNK):
+        np.divide(t[i : i + METRIC_CHUNK], p[i : i + METRIC_CHUNK], out=ratio[i : i + METRIC_CHUNK], dtype=np.float64)
+    return float(np.median(ratio, overwrite_input=True))
 
 
 def depth_edge_mask(truth: np.ndarray, jump: float = 0.05, px: int = 2) -> np.ndarray:
@@ -160,16 +172,24 @@ def point_flying_share(xyz: np.ndarray, truth: np.ndarray, scale: float = 1.0) -
     [H, W] (nearest pixel), the share whose distance from the centre is more than ``FLYING_REL`` off that
     distance -> (share, points compared; NaN and 0 when none). For a cloud back-projected from a depth map it is
     that map's ``flying``; a point off the centre's line of sight (a multi-view baseline's point behind a
-    surface) counts as flying too."""
+    surface) counts as flying too. Float64, ``METRIC_CHUNK`` points at a time (integer counts: the same share in
+    any chunking; an 8K cloud's float64 copies would be several 805 MB arrays at once)."""
     from ..geometry import sample_erp
+    from ..geometry.remap import pad_erp
 
-    pts = np.asarray(xyz, np.float64) * scale
-    r = np.linalg.norm(pts, axis=1)
-    ok = r > 0
-    true = sample_erp(np.asarray(truth, np.float32), pts[ok] / r[ok, None], "nearest").astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        use = np.isfinite(true) & (true > 0)
-    if not use.any():
+    truth = np.asarray(truth, np.float32)
+    padded = pad_erp(truth)  # sample_erp pads the map for every call: once here
+    flying, compared = 0, 0
+    for i in range(0, len(xyz), METRIC_CHUNK):
+        pts = np.asarray(xyz[i : i + METRIC_CHUNK], np.float64) * scale
+        r = np.linalg.norm(pts, axis=1)
+        ok = r > 0
+        true = sample_erp(truth, pts[ok] / r[ok, None], "nearest", padded=padded).astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            use = np.isfinite(true) & (true > 0)
+        off = np.abs(r[ok][use] - true[use]) / true[use]
+        flying += int(np.count_nonzero(off > FLYING_REL))
+        compared += int(use.sum())
+    if not compared:
         return float("nan"), 0
-    off = np.abs(r[ok][use] - true[use]) / true[use]
-    return float(np.mean(off > FLYING_REL)), int(use.sum())
+    return flying / compared, compared

@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from ..geometry import PointCloud, erp_to_perspective
-from ..geometry.sphere import direction_to_erp_pixel, erp_directions
+from ..geometry.sphere import direction_to_erp_pixel, erp_pixel_to_lonlat, lonlat_to_direction
 
 
 def sky_environment(scene) -> np.ndarray | None:
@@ -59,10 +59,15 @@ def points_for_resolution(res: int, fov_deg: float, pixels_per_point: float) -> 
 
 
 def _cos_latitude_weight(xyz: np.ndarray) -> np.ndarray:
-    """[N] float64: cos(latitude) of each point's direction from the origin, floored at 0.02 (1 at the origin)."""
-    xyz = xyz.astype(np.float64)
-    r = np.linalg.norm(xyz, axis=1)
-    return np.maximum(np.divide(np.hypot(xyz[:, 0], xyz[:, 1]), r, out=np.ones_like(r), where=r > 0), 0.02)
+    """[N] float64: cos(latitude) of each point's direction from the origin, floored at 0.02 (1 at the origin).
+    Float64, ``SPREAD_CHUNK`` points at a time (elementwise: the same values in any chunking)."""
+    out = np.empty(len(xyz), np.float64)
+    for i in range(0, len(xyz), SPREAD_CHUNK):
+        x = xyz[i : i + SPREAD_CHUNK].astype(np.float64)
+        r = np.linalg.norm(x, axis=1)
+        w = np.divide(np.hypot(x[:, 0], x[:, 1]), r, out=np.ones_like(r), where=r > 0)
+        np.maximum(w, 0.02, out=out[i : i + SPREAD_CHUNK])
+    return out
 
 
 def _thin_index(w: np.ndarray, n_points: int, seed: int) -> np.ndarray:
@@ -89,6 +94,7 @@ def thin_cloud(pc: PointCloud, n_points: int, seed: int = 0) -> PointCloud:
 
 
 DETAIL_LEVELS = 4  # coarsest detail-thinning level: sites 4^4 = 256 times sparser (16 times the spacing)
+SPREAD_CHUNK = 1 << 21  # points per chunk of site_spread's float64 temporaries
 DETAIL_MIN_POINTS = 6  # a site with fewer points is never called smooth (a plane through 3 fits any noise)
 
 
@@ -109,36 +115,65 @@ def site_spread(site: np.ndarray, n_sites: int, xyz: np.ndarray, rgb: np.ndarray
     y = 1 / (x . m) is fitted by least squares as a + b u + c v, (u, v) = the point's tangent coordinates over its
     x . m, and depth_sd = sqrt(residual sum of squares / (count - 3)) / mean y (inf for 3 points or fewer, which
     any plane fits; NaN, and a NaN normal, for a site without points, or whose points are not all in front of the
-    origin along m). Centred sums in float64."""
+    origin along m). Centred sums in float64, ``SPREAD_CHUNK`` points at a time (three passes: means, then the
+    centred sums; only per-site arrays span the cloud, so an 8K cloud of 33.5M points needs no [N, 3] float64
+    copy). A chunk's sums are added to the running per-site sums, so the values differ from one-piece sums by
+    float rounding only."""
     count = np.bincount(site, minlength=n_sites)
     n = np.maximum(count, 1).astype(np.float64)
+    chunks = [slice(i, i + SPREAD_CHUNK) for i in range(0, len(site), SPREAD_CHUNK)]
 
-    def mean(v):
-        return np.bincount(site, v, minlength=n_sites) / n
+    def sums(values_of, k: int) -> np.ndarray:
+        """[k, S]: per site, the sum over its points of each of the k per-point values ``values_of(chunk)``."""
+        out = np.zeros((k, n_sites))
+        for sl in chunks:
+            out += np.stack([np.bincount(site[sl], v, minlength=n_sites) for v in values_of(sl)])
+        return out
 
-    x = xyz.astype(np.float64)
-    c = rgb.astype(np.float64)
-    colour_var = [mean((c[:, k] - mean(c[:, k])[site]) ** 2) for k in range(3)]
-    r = np.linalg.norm(x, axis=1)
-    d = x / np.maximum(r, 1e-300)[:, None]
-    m = np.stack([mean(d[:, k]) for k in range(3)], 1)
+    def direction(sl):
+        x = xyz[sl].astype(np.float64)
+        return x, x / np.maximum(np.linalg.norm(x, axis=1), 1e-300)[:, None]
+
+    # pass 1: colour means and the mean direction m of each site
+    first = sums(lambda sl: [*rgb[sl].astype(np.float64).T, *direction(sl)[1].T], 6)
+    mean_c, m = first[:3] / n, (first[3:] / n).T
     m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
     e1, e2 = _tangent_axes(m)
-    z = np.einsum("nk,nk->n", x, m[site])
-    ahead = np.bincount(site, z <= 0, minlength=n_sites) == 0  # every point in front of the origin along m
-    zs = np.where(z > 0, z, 1.0)
-    u, v, y = np.einsum("nk,nk->n", x, e1[site]) / zs, np.einsum("nk,nk->n", x, e2[site]) / zs, 1.0 / zs
-    uc, vc, yc = u - mean(u)[site], v - mean(v)[site], y - mean(y)[site]
-    suu, suv, svv = mean(uc * uc), mean(uc * vc), mean(vc * vc)
-    suy, svy, syy = mean(uc * yc), mean(vc * yc), mean(yc * yc)
+
+    def gnomonic(sl):
+        """z (along the site's m), and u, v, y = 1/z of the chunk's points (z <= 0: z taken as 1)."""
+        x, ms = xyz[sl].astype(np.float64), site[sl]
+        z = np.einsum("nk,nk->n", x, m[ms])
+        zs = np.where(z > 0, z, 1.0)
+        return z, np.einsum("nk,nk->n", x, e1[ms]) / zs, np.einsum("nk,nk->n", x, e2[ms]) / zs, 1.0 / zs
+
+    def second(sl):
+        c, ms = rgb[sl].astype(np.float64), site[sl]
+        z, u, v, y = gnomonic(sl)
+        return [*((c[:, k] - mean_c[k][ms]) ** 2 for k in range(3)), z <= 0, u, v, y]
+
+    # pass 2: the colour variances, who is behind the origin, the means of u, v, y
+    sec = sums(second, 7)
+    colour_var = sec[:3] / n
+    ahead = sec[3] == 0  # every point in front of the origin along m
+    mu, mv, my = sec[4] / n, sec[5] / n, sec[6] / n
+
+    def third(sl):
+        ms = site[sl]
+        _, u, v, y = gnomonic(sl)
+        uc, vc, yc = u - mu[ms], v - mv[ms], y - my[ms]
+        return [uc * uc, uc * vc, vc * vc, uc * yc, vc * yc, yc * yc]
+
+    # pass 3: the centred second moments of the plane fit
+    suu, suv, svv, suy, svy, syy = sums(third, 6) / n
     G = np.stack([np.stack([suu, suv], -1), np.stack([suv, svv], -1)], -2)
     g = np.stack([suy, svy], -1)
     coef = np.einsum("sij,sj->si", np.linalg.pinv(G, rcond=1e-10, hermitian=True), g)
     ss = np.maximum(syy - np.einsum("si,si->s", coef, g), 0.0) * count  # residual sum of squares
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth_sd = np.where(count > 3, np.sqrt(ss / np.maximum(count - 3.0, 1.0)) / mean(y), np.inf)
+        depth_sd = np.where(count > 3, np.sqrt(ss / np.maximum(count - 3.0, 1.0)) / my, np.inf)
     # 1/z = (n1 u + n2 v + n_m) / k for the plane n . X = k: the normal is (b, c, intercept) in (e1, e2, m)
-    intercept = mean(y) - coef[:, 0] * mean(u) - coef[:, 1] * mean(v)
+    intercept = my - coef[:, 0] * mu - coef[:, 1] * mv
     normal = coef[:, :1] * e1 + coef[:, 1:] * e2 + intercept[:, None] * m
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     out = {"count": count, "colour_sd": np.sqrt(np.max(colour_var, axis=0)), "depth_sd": depth_sd, "normal": normal}
@@ -172,8 +207,11 @@ def thin_by_detail(
         raise ValueError(f"thin_by_detail: colour_tol={colour_tol}, depth_tol={depth_tol}: expected both >= 0")
     from ..geometry import direction_to_lonlat, fibonacci_site_of, nearest_per_site
 
-    xyz = pc.xyz.astype(np.float64)
-    lon, lat = direction_to_lonlat(xyz)
+    lon, lat = np.empty(len(pc)), np.empty(len(pc))  # float64, from float64 directions made a chunk at a time
+    for i in range(0, len(pc), SPREAD_CHUNK):
+        lon[i : i + SPREAD_CHUNK], lat[i : i + SPREAD_CHUNK] = direction_to_lonlat(
+            pc.xyz[i : i + SPREAD_CHUNK].astype(np.float64)
+        )
     taken = np.zeros(len(pc), bool)
     normals = np.zeros((len(pc), 3), np.float32)  # a coarse point's site plane; 0: none
     keep, per_level = [], {}
@@ -183,7 +221,7 @@ def thin_by_detail(
         if n_sites < 12:
             continue
         site, cos = fibonacci_site_of(pc.xyz, lon, lat, n_sites)
-        spread = site_spread(site, n_sites, xyz, pc.rgb)
+        spread = site_spread(site, n_sites, pc.xyz, pc.rgb)
         with np.errstate(invalid="ignore"):  # NaN spreads of empty sites compare False
             smooth = (
                 (spread["count"] >= DETAIL_MIN_POINTS)
@@ -196,6 +234,8 @@ def thin_by_detail(
         keep.append(kept)
         normals[kept] = spread["normal"][site[kept]]
         per_level[level] = len(kept)
+        del site, cos, spread, smooth, mine
+    del lon, lat  # not needed below: the uniform thinning's arrays take their place
     rest = np.flatnonzero(~taken)
     w = _cos_latitude_weight(pc.xyz)
     n_rest = len(rest) if len(pc) <= n_points else int(round(n_points * w[rest].sum() / w.sum()))
@@ -211,17 +251,29 @@ def thin_by_detail(
 
 def erp_zbuffer(pc: PointCloud, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """The cloud seen from the origin: per ERP pixel the nearest point's distance [H, W] float64 (inf where no
-    point) and colour [H, W, 3] float32."""
-    r = np.linalg.norm(pc.xyz.astype(np.float64), axis=1)
-    ok = r > 0
-    rows, cols = direction_to_erp_pixel(pc.xyz[ok].astype(np.float64), height, width)
-    ri = np.clip(np.rint(rows).astype(np.int64), 0, height - 1)
-    ci = np.rint(cols).astype(np.int64) % width
-    far_first = np.argsort(-r[ok], kind="stable")  # the nearest point of a pixel is written last
+    point) and colour [H, W, 3] float32 (of equally near points, the last in the cloud's order). Each point's
+    pixel and distance are computed from float64 coordinates ``SPREAD_CHUNK`` points at a time and written far
+    to near in chunks of that order: the full-size arrays are the distances, flat pixel indices and the order
+    (an 8K cloud's float64 [N, 3] copies would be 805 MB each)."""
+    n = len(pc)
+    r, pixel = np.empty(n), np.empty(n, np.int64)
+    for i in range(0, n, SPREAD_CHUNK):
+        x = pc.xyz[i : i + SPREAD_CHUNK].astype(np.float64)
+        r[i : i + SPREAD_CHUNK] = np.linalg.norm(x, axis=1)
+        rows, cols = direction_to_erp_pixel(x, height, width)  # a point at the origin: arbitrary, dropped below
+        pixel[i : i + SPREAD_CHUNK] = np.clip(np.rint(rows).astype(np.int64), 0, height - 1) * width + (
+            np.rint(cols).astype(np.int64) % width
+        )
+    ok = np.flatnonzero(r > 0)
+    far_first = ok[np.argsort(-r[ok], kind="stable")]  # the nearest point of a pixel is written last
+    del ok
     dist = np.full((height, width), np.inf)
     rgb = np.zeros((height, width, 3), np.float32)
-    dist[ri[far_first], ci[far_first]] = r[ok][far_first]
-    rgb[ri[far_first], ci[far_first]] = pc.rgb[ok][far_first]
+    flat_d, flat_rgb = dist.reshape(-1), rgb.reshape(-1, 3)
+    for i in range(0, len(far_first), SPREAD_CHUNK):  # in order, chunk after chunk: the last write still wins
+        o = far_first[i : i + SPREAD_CHUNK]
+        flat_d[pixel[o]] = r[o]
+        flat_rgb[pixel[o]] = pc.rgb[o]
     return dist, rgb
 
 
@@ -256,13 +308,17 @@ def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float =
     for _ in range(int(math.ceil(fill_deg / (360.0 / width)))):
         targets, values, origins = [], [], []
         for k in range(4):  # target t sees source s as its neighbour (1, 0, 3, 2)[k]: up first, as the rule reads
-            t = neighbour(sources, (1, 0, 3, 2)[k])
-            ok = t >= 0
-            t_ok = np.where(ok, t, 0)
-            ok &= np.isfinite(flat[t_ok]) & ~np.isfinite(layer_d[t_ok]) & (source_d > flat[t_ok] * (1 + jump))
-            targets.append(t[ok])
-            values.append(source_d[ok])
-            origins.append(source_origin[ok])
+            # SPREAD_CHUNK sources at a time (the first step has every surface pixel, 33.5M at 8K), in order: the
+            # lists come out as one piece would make them
+            for i in range(0, len(sources), SPREAD_CHUNK):
+                sd = source_d[i : i + SPREAD_CHUNK]
+                t = neighbour(sources[i : i + SPREAD_CHUNK], (1, 0, 3, 2)[k])
+                ok = t >= 0
+                t_ok = np.where(ok, t, 0)
+                ok &= np.isfinite(flat[t_ok]) & ~np.isfinite(layer_d[t_ok]) & (sd > flat[t_ok] * (1 + jump))
+                targets.append(t[ok])
+                values.append(sd[ok])
+                origins.append(source_origin[i : i + SPREAD_CHUNK][ok])
         t, v, o = np.concatenate(targets), np.concatenate(values), np.concatenate(origins)
         if not len(t):
             break
@@ -274,7 +330,10 @@ def disocclusion_fill(pc: PointCloud, height: int, width: int, fill_deg: float =
         layer_d[t], origin[t] = v, o
         sources, source_d, source_origin = t, v, o
     at = np.flatnonzero(np.isfinite(layer_d))
-    xyz = erp_directions(height, width).reshape(-1, 3)[at] * layer_d[at][:, None]
+    # the layer pixels' directions only (erp_directions' values there; the whole grid is 805 MB at 8K)
+    rows, cols = np.divmod(at, width)
+    xyz = lonlat_to_direction(*erp_pixel_to_lonlat(rows.astype(np.float64), cols.astype(np.float64), height, width))
+    xyz *= layer_d[at][:, None]
     return PointCloud(xyz.astype(np.float32), rgb.reshape(-1, 3)[origin[at]])
 
 

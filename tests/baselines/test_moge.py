@@ -52,3 +52,29 @@ def test_missing_moge_is_one_clear_n_a(monkeypatch):
     monkeypatch.setitem(sys.modules, "moge.utils", None)  # an import of moge.utils now fails
     with pytest.raises(BaselineUnavailableError, match=r"^n/a: moge-merge needs MoGe's code.*dlr-moge"):
         bm.moge_cameras(16)
+
+
+def test_a_panorama_too_large_for_the_memory_left_is_one_clear_n_a_before_any_work(monkeypatch):
+    from types import SimpleNamespace
+
+    import baselines.moge as bm
+    from panorecon.io.process import MEMORY_BUDGET_ENV
+
+    need_8k = bm.merge_memory_mb(4096, 8192)
+    assert need_8k > 20_000  # the measured rate (820 MB per megapixel) at 8192 x 4096: about 27 GB
+    monkeypatch.setenv(MEMORY_BUDGET_ENV, "14000")
+    with pytest.raises(
+        BaselineUnavailableError, match=r"^n/a: moge-merge at 8192 x 4096: .* about 26\.9 GB .* 13\.7 GB"
+    ):
+        bm.check_memory(SimpleNamespace(height=4096, width=8192))
+    bm.check_memory(SimpleNamespace(height=1024, width=2048))  # 1.7 GB: runs
+
+
+def test_the_source_check_says_n_a_through_run_source(monkeypatch):
+    from panorecon.io.process import MEMORY_BUDGET_ENV
+    from panorecon.scenes import load_scene
+    from panorecon.sources import run_source
+
+    monkeypatch.setenv(MEMORY_BUDGET_ENV, "1")  # 1 MB: nothing fits
+    with pytest.raises(BaselineUnavailableError, match=r"^n/a: moge-merge at 64 x 32: .*io.memory_budget_mb"):
+        run_source(load_scene("bedroom", 64), "moge-merge", "sim:relative")

@@ -31,6 +31,21 @@ class TestSeamAndPoles:
         np.testing.assert_array_equal(p[1, 2:10], np.roll(e[0], -4))
         np.testing.assert_array_equal(p[2:6, 0:2], e[:, -2:])
 
+    @pytest.mark.parametrize("shape,pad", [((4, 8), 2), ((6, 12, 3), 3), ((5, 10), 5)])
+    def test_pad_equals_the_whole_map_roll_and_concatenations(self, shape, pad):
+        e = np.random.default_rng(0).uniform(size=shape).astype(np.float32)
+        shifted = np.roll(e, shape[1] // 2, axis=1)  # the reference: whole-map roll, two concatenations
+        tall = np.concatenate([shifted[:pad][::-1], e, shifted[-pad:][::-1]], axis=0)
+        ref = np.concatenate([tall[:, -pad:], tall, tall[:, :pad]], axis=1)
+        got = pad_erp(e, pad)
+        assert got.dtype == e.dtype
+        np.testing.assert_array_equal(got, ref)
+
+    def test_sample_with_a_padded_map_given_equals_padding_inside(self):
+        e = smooth_erp(32)
+        d = erp_directions(16, 32) * 2.0
+        np.testing.assert_array_equal(sample_erp(e, d, "nearest", padded=pad_erp(e)), sample_erp(e, d, "nearest"))
+
     @pytest.mark.parametrize(
         "lon,lat",
         [

@@ -130,3 +130,34 @@ def test_point_flying_share_measures_each_point_on_its_ray_from_the_centre():
     assert n == len(d) and share == pytest.approx(50 / len(d))
     up = erp_directions(32, 64)[:2].reshape(-1, 3)
     assert point_flying_share(up, truth) == (pytest.approx(float("nan"), nan_ok=True), 0)
+
+
+def test_point_flying_share_in_chunks_equals_one_piece(monkeypatch):
+    import panorecon.metrics.depth as depth_module
+    from panorecon.geometry import erp_directions
+    from panorecon.metrics import point_flying_share
+
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(1, 4, (24, 48)).astype(np.float32)
+    truth[:3] = np.inf  # sky rows: not compared
+    d = erp_directions(24, 48).reshape(-1, 3)
+    xyz = (d * truth.reshape(-1, 1) * rng.uniform(0.3, 2.0, (len(d), 1)) / 2.0)[3 * 48 :].astype(np.float32)
+    xyz[:5] = 0.0  # points at the centre have no ray
+    whole = point_flying_share(xyz, truth, 2.0)
+    monkeypatch.setattr(depth_module, "METRIC_CHUNK", 97)
+    assert point_flying_share(xyz, truth, 2.0) == whole
+    assert whole[1] == len(xyz) - 5 and 0 < whole[0] < 1
+
+
+def test_median_scale_equals_numpys_median_of_float64_ratios(monkeypatch):
+    import panorecon.metrics.depth as depth_module
+
+    rng = np.random.default_rng(1)
+    for n in (1001, 1000):  # odd and even counts
+        t = rng.uniform(1, 5, n).astype(np.float32)
+        p = (t * rng.uniform(0.8, 1.3, n)).astype(np.float32)
+        ref = float(np.median(t.astype(np.float64) / p.astype(np.float64)))
+        assert depth_metrics(p.reshape(1, -1), t.reshape(1, -1))["scale"] == ref
+        monkeypatch.setattr(depth_module, "METRIC_CHUNK", 64)
+        assert depth_metrics(p.reshape(1, -1), t.reshape(1, -1))["scale"] == ref
+        monkeypatch.undo()

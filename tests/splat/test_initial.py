@@ -170,3 +170,82 @@ def test_fill_matches_its_pixel_by_pixel_reference(seed, fill_deg, sky):
     for k, (d, col) in want.items():
         assert got[k][0] == pytest.approx(d, rel=1e-6)
         np.testing.assert_allclose(got[k][1], col, atol=1e-6)
+
+
+def _zbuffer_one_piece(pc, height, width):
+    """``erp_zbuffer`` as a whole-cloud float64 copy, one argsort and one fancy assignment (the reference)."""
+    from panorecon.geometry.sphere import direction_to_erp_pixel
+
+    r = np.linalg.norm(pc.xyz.astype(np.float64), axis=1)
+    ok = r > 0
+    rows, cols = direction_to_erp_pixel(pc.xyz[ok].astype(np.float64), height, width)
+    ri = np.clip(np.rint(rows).astype(np.int64), 0, height - 1)
+    ci = np.rint(cols).astype(np.int64) % width
+    far_first = np.argsort(-r[ok], kind="stable")
+    dist = np.full((height, width), np.inf)
+    rgb = np.zeros((height, width, 3), np.float32)
+    dist[ri[far_first], ci[far_first]] = r[ok][far_first]
+    rgb[ri[far_first], ci[far_first]] = pc.rgb[ok][far_first]
+    return dist, rgb
+
+
+@pytest.mark.parametrize("chunk", [1 << 21, 997])
+def test_zbuffer_in_chunks_equals_one_piece(monkeypatch, chunk):
+    import panorecon.splat.initial as initial
+
+    monkeypatch.setattr(initial, "SPREAD_CHUNK", chunk)
+    rng = np.random.default_rng(2)
+    d = erp_directions(32, 64).reshape(-1, 3)
+    xyz = d * rng.uniform(1, 4, (len(d), 1))
+    # several points per pixel, some equally near (the later one wins), and two at the origin
+    more = xyz[rng.integers(0, len(d), 3000)] * rng.choice([0.5, 1.0, 2.0], (3000, 1))
+    pc = PointCloud(np.concatenate([xyz, more, xyz[:50], np.zeros((2, 3))]), rng.random((len(d) + 3052, 3)))
+    got, want = initial.erp_zbuffer(pc, 32, 64), _zbuffer_one_piece(pc, 32, 64)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_fill_points_lie_on_their_erp_pixels_rays():
+    from panorecon.splat.initial import erp_zbuffer
+
+    H, W = 16, 32
+    dist = np.full((H, W), 6.0)
+    dist[5:10, 8:14] = 2.0
+    pc, _ = erp_cloud(dist, 0)
+    fill = disocclusion_fill(pc, H, W, 30.0)
+    layer, _ = erp_zbuffer(fill, H, W)
+    at = np.isfinite(layer)
+    assert at.sum() == len(fill) > 0
+    # each fill point is on erp_directions' ray of its pixel (row-major, as the fill lists them)
+    np.testing.assert_allclose(fill.xyz, (erp_directions(H, W)[at] * layer[at][:, None]).astype(np.float32), rtol=1e-6)
+
+
+def test_directions_of_some_pixels_are_erp_directions_values_to_the_bit():
+    """The fill's directions are made for its pixels only (rows and columns from the flat index), not picked from
+    the whole grid: the same float64 values."""
+    from panorecon.geometry.sphere import erp_pixel_to_lonlat, lonlat_to_direction
+
+    H, W = 48, 96
+    at = np.sort(np.random.default_rng(0).choice(H * W, 500, replace=False))
+    rows, cols = np.divmod(at, W)
+    some = lonlat_to_direction(*erp_pixel_to_lonlat(rows.astype(np.float64), cols.astype(np.float64), H, W))
+    np.testing.assert_array_equal(some, erp_directions(H, W).reshape(-1, 3)[at])
+
+
+def test_fill_in_chunks_of_sources_equals_one_piece(monkeypatch):
+    import panorecon.splat.initial as initial
+
+    H, W = 24, 48
+    rng = np.random.default_rng(5)
+    dist = np.full((H, W), 8.0)
+    for _ in range(6):  # nested boxes: ties between neighbours, layers over several steps
+        r, c = rng.integers(0, H - 4), rng.integers(0, W)
+        dist[r : r + rng.integers(2, 8), (c + np.arange(rng.integers(2, 12))) % W] = rng.choice([1.0, 2.0, 4.0])
+    dist[:2] = np.inf
+    pc, _ = erp_cloud(dist, 5)
+    whole = initial.disocclusion_fill(pc, H, W, 40.0)
+    monkeypatch.setattr(initial, "SPREAD_CHUNK", 37)
+    chunked = initial.disocclusion_fill(pc, H, W, 40.0)
+    assert len(whole) > 50
+    np.testing.assert_array_equal(chunked.xyz, whole.xyz)
+    np.testing.assert_array_equal(chunked.rgb, whole.rgb)

@@ -139,3 +139,24 @@ def test_any_cloud_thins_to_a_finite_subset(n, log_scale, spread, grey, want, se
     if out.normals is not None:  # a disc's plane, or 0: never NaN into the model
         norm = np.linalg.norm(out.normals, axis=1)
         assert np.isfinite(out.normals).all() and np.all((np.abs(norm - 1) < 1e-5) | (norm == 0))
+
+
+def test_site_spread_and_thinning_in_chunks_equal_one_piece(monkeypatch):
+    import panorecon.splat.initial as initial
+
+    rng = np.random.default_rng(4)
+    pc = _sphere(48)  # grey: smooth but for some depth detail near the north pole
+    pc.xyz[:600] *= rng.uniform(0.5, 2.0, (600, 1)).astype(np.float32)
+    site = rng.integers(0, 60, len(pc))
+    whole = site_spread(site, 60, pc.xyz, pc.rgb)
+    thinned, info = thin_by_detail(pc, 2000, 0.05, 0.05, seed=2)
+    weights = initial._cos_latitude_weight(pc.xyz)
+    monkeypatch.setattr(initial, "SPREAD_CHUNK", 997)  # several chunks, the last one partial
+    chunked = site_spread(site, 60, pc.xyz, pc.rgb)
+    for k in whole:
+        np.testing.assert_allclose(chunked[k], whole[k], rtol=1e-10, atol=1e-12, equal_nan=True, err_msg=k)
+    np.testing.assert_array_equal(initial._cos_latitude_weight(pc.xyz), weights)
+    again, info_again = thin_by_detail(pc, 2000, 0.05, 0.05, seed=2)
+    assert info_again == info and sum(info["points_per_level"].values()) == len(thinned)
+    assert info["points_per_level"][0] > 0 and sum(v for k, v in info["points_per_level"].items() if k) > 0
+    np.testing.assert_array_equal(again.xyz, thinned.xyz)
