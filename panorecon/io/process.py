@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import resource
 
 
@@ -46,7 +47,15 @@ def memory_budget_mb() -> float | None:
 
     env = os.environ.get(MEMORY_BUDGET_ENV)
     if env:
-        return float(env)
+        try:
+            budget = float(env)
+        except ValueError:
+            budget = math.nan
+        if not (math.isfinite(budget) and budget > 0):
+            from .files import PanoreconInputError
+
+            raise PanoreconInputError(f"${MEMORY_BUDGET_ENV}={env!r}: expected a positive number of MB")
+        return budget
     try:
         with open("/proc/meminfo") as f:
             for line in f:

@@ -19,3 +19,12 @@ def test_without_it_the_budget_is_the_memory_available(monkeypatch):
     with open("/proc/meminfo") as f:
         total = next(int(line.split()[1]) for line in f if line.startswith("MemTotal:")) / 1024
     assert 0 < memory_budget_mb() <= total
+
+
+@pytest.mark.parametrize("value", ["lots", "-5", "nan", "0"])
+def test_a_budget_that_is_no_positive_number_is_one_clear_error(monkeypatch, value):
+    from panorecon.io import PanoreconInputError
+
+    monkeypatch.setenv(MEMORY_BUDGET_ENV, value)
+    with pytest.raises(PanoreconInputError, match=MEMORY_BUDGET_ENV):
+        memory_budget_mb()
