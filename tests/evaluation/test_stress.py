@@ -49,6 +49,34 @@ def test_quick_mode_gives_every_row_and_its_table(tmp_path):
     assert cells[5] == f"{low:.3f}–{high:.3f}"
 
 
+EVERY_CASE = [c.name for c in script.CASES if c.name not in (*script.QUICK_CASES, "8k")]
+
+
+def test_every_other_case_runs_in_quick_mode_with_finite_rows():
+    """The cases the quick mode leaves out, by name, at 64 px (8K: its chunked stages' own tests): a row per source,
+    finite errors where the scene has truth, a finite training row, a reason where no teacher runs; at the cliffs
+    the fused layouts fly far less than the teacher on the whole panorama (erp-direct), and the same room at 1e-3
+    and 1e3 trains to the same picture."""
+    out = script.main(["--quick", "--cases", ",".join(EVERY_CASE)])
+    rows = {r["case"]: r for r in out["rows"]}
+    assert list(rows) == EVERY_CASE
+    for name, r in rows.items():
+        if name == "real-py360":
+            assert all("no teacher runs offline" in p["unavailable"] for p in r["points"].values())
+            continue
+        assert set(r["points"]) == {"fibonacci", "erp-direct"} and math.isfinite(r["train"]["psnr"]), name
+        for p in r["points"].values():
+            assert p["points"] > 0 and p["seconds"] > 0, name
+            if name != "real-hohonet":
+                assert all(math.isfinite(p[k]) for k in ("abs_rel", "flying", "ws_flying", "median_rel")), name
+    assert rows["real-hohonet"]["points"]["fibonacci"]["depth"].startswith("n/a")
+    for cliff in ("cliff-10", "cliff-1e4"):
+        points = rows[cliff]["points"]
+        assert points["fibonacci"]["flying"] < 0.1 * points["erp-direct"]["flying"], points
+    small, large = rows["scale-1e-3"]["train"]["psnr"], rows["scale-1e3"]["train"]["psnr"]
+    assert abs(small - large) < 0.3, (small, large)
+
+
 def test_an_unknown_case_is_one_argparse_error(capsys):
     with pytest.raises(SystemExit):
         script.main(["--quick", "--cases", "nosuch"])
