@@ -26,14 +26,20 @@ def reset_peak_rss() -> bool:
 def window_peak_rss_mb() -> float:
     """Peak resident memory (MB) since the last ``reset_peak_rss`` (VmHWM of /proc/self/status); without /proc,
     the process's peak so far (``peak_rss_mb``)."""
+    peak = _proc_mb("/proc/self/status", "VmHWM")
+    return peak_rss_mb() if peak is None else peak
+
+
+def _proc_mb(path: str, key: str) -> float | None:
+    """The ``key:`` line of a /proc file that counts in kB (VmHWM, MemAvailable), in MB; None where unreadable."""
     try:
-        with open("/proc/self/status") as f:
+        with open(path) as f:
             for line in f:
-                if line.startswith("VmHWM:"):
+                if line.startswith(key + ":"):
                     return int(line.split()[1]) / 1024.0
     except OSError:
         pass
-    return peak_rss_mb()
+    return None
 
 
 MEMORY_BUDGET_ENV = "PANORECON_MEMORY_BUDGET_MB"
@@ -56,11 +62,4 @@ def memory_budget_mb() -> float | None:
 
             raise PanoreconInputError(f"${MEMORY_BUDGET_ENV}={env!r}: expected a positive number of MB")
         return budget
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return None
+    return _proc_mb("/proc/meminfo", "MemAvailable")
