@@ -40,7 +40,8 @@ import numpy as np
 
 from panorecon.metrics.depth import FLYING_REL
 
-SOURCES = ("fibonacci", "icosahedral", "latlong", "cube", "erp-direct", "moge-merge")
+LAYOUTS = ("fibonacci", "icosahedral", "latlong", "cube")  # the fused view layouts; the method is the first
+SOURCES = (*LAYOUTS, "erp-direct", "moge-merge")
 TEACHER = "sim:relative"
 
 
@@ -324,9 +325,6 @@ def run_case(case: Case, width: int, sources: tuple[str, ...], train: dict) -> d
 
 def _fmt(v, spec: str) -> str:
     return format(v, spec) if isinstance(v, (int, float)) and math.isfinite(v) else "n/a"
-
-
-LAYOUTS = ("fibonacci", "icosahedral", "latlong", "cube")
 
 
 def summary(rows: list[dict]) -> str:
