@@ -262,9 +262,11 @@ def _cli_type(s: C.Setting):
 
 
 def _help(s: C.Setting) -> str:
+    """The option's help as argparse takes it: a literal % doubled (argparse formats help with % params)."""
     shown = ",".join(map(str, s.default)) if isinstance(s.default, tuple) else s.default
     plain = s.default in (None, ()) or isinstance(s.default, bool) or "(default" in s.meta["help"]
-    return s.meta["help"] if plain else f"{s.meta['help']} (default {shown})".lstrip()
+    text = s.meta["help"] if plain else f"{s.meta['help']} (default {shown})".lstrip()
+    return text.replace("%", "%%")
 
 
 def add_settings(parser: argparse.ArgumentParser, config: type) -> None:

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from panorecon.cli import TRAIN_VIEWS, main
+from panorecon.cli import COMMANDS, TRAIN_VIEWS, main
 from panorecon.io import read_image
 
 
@@ -258,3 +258,10 @@ def test_a_screenshot_keeps_vtk_noise_off_the_terminal(tmp_path, capfd):
     assert main(["inspect", str(tmp_path / "c.ply"), "--screenshot", str(tmp_path / "s.png")]) == 0
     out, err = capfd.readouterr()
     assert err == "" and "c.ply: 200 points" in out and read_image(tmp_path / "s.png").std() > 1
+
+
+@pytest.mark.parametrize("words", [w for w, (_, config, _) in COMMANDS.items() if config])
+def test_every_commands_help_prints(words, capsys):
+    """argparse formats help text with % params: a literal % in a field's help must not break --help."""
+    assert main([*words, "--help"]) == 0
+    assert "usage:" in capsys.readouterr().out
