@@ -79,11 +79,10 @@ def _render(
 ):
     """Render ``views`` (their cameras given as ``cameras`` = (viewmats, Ks) when already on the device) over
     their sky background (``background`` [V, h, w, 3] when already on the device), ``res`` pixels square
-    (default ``cfg.res`` of the ``TrainConfig`` ``cfg``; another size needs ``cameras`` and ``background`` of
-    that size)."""
+    (default: the views' own size; another size needs ``cameras`` and ``background`` of that size)."""
     dev = model.means.device
     V, K = cameras if cameras is not None else _cameras(views, dev)
-    size = res or cfg.res
+    size = res or views[0].camera.width
     scales, opacities = model.rendered()
     img, alpha, depth, meta = rasterize(
         model.means,
@@ -98,6 +97,7 @@ def _render(
         sh_degree=sh_degree,
         near_plane=model.near_plane,
         backend=backend,
+        antialiased=cfg.antialiased,
         return_contrib=return_contrib,
     )
     if background is None and views[0].background is not None:  # the sky environment (splat/initial.py)
@@ -136,7 +136,7 @@ def _evaluate(model, views, cfg, backend) -> dict:
         return {}
     if any(v.mask is not None for v in views):
         return _evaluate_masked(model, views, cfg, backend)
-    net = lpips_or_reason(cfg.res)
+    net = lpips_or_reason(views[0].camera.width)
     ps, ss, lp, kept = [], [], [], []
     with torch.no_grad():
         for v in views:
@@ -185,7 +185,7 @@ def _evaluate_masked(model, views, cfg, backend) -> dict:
         "protocol": "other panoramas of the space, pixels the training "
         f"panorama also sees (true distances agree within {COVISIBLE_PERCENT})",
         "covisible_fraction": sum(int(v.mask.sum()) for v in views) / float(sum(v.mask.size for v in views)),
-        **_aligned_scores(kept, lpips_or_reason(cfg.res) if kept else None, covisible_shortfall(views)),
+        **_aligned_scores(kept, lpips_or_reason(views[0].camera.width) if kept else None, covisible_shortfall(views)),
     }
 
 

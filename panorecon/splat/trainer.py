@@ -71,6 +71,12 @@ class TrainConfig:
     iters: int = opt(3000, "optimisation steps (one pseudo-label view per step)", check=C.ITERS)
     res: int = opt(128, "pseudo-label and held-out view size in pixels (square)", check=C.LABEL_RES)
     labels: int = opt(240, "number of dense pseudo-label views (Table 5: 120-360)", check=C.LABELS)
+    label_res: int = opt(
+        0,
+        "pseudo-label view size in pixels when it differs from the held-out views' `res` (the labels carry the "
+        "panorama's detail up to its own angular resolution, ERP width / 360 px per degree); 0: res",
+        check=C.int_in(0, 4096, "label view size"),
+    )
     fov_deg: float = opt(60.0, "field of view of the label and held-out views (degrees)", check=C.FOV_DEG)
     layout: str = opt("fibonacci", "layout of the pseudo-label directions", choices=_layouts)
     backend: str = opt(
@@ -124,6 +130,13 @@ class TrainConfig:
         "variance of Mip-Splatting's 3D smoothing filter in squared label pixels (its 0.2): every Gaussian rendered "
         "no thinner than the finest label pixel that sees it (splat/footprint.py); 0: none",
         check=C.float_in(0.0, 100.0, "filter variance"),
+    )
+    antialiased: bool = opt(
+        False,
+        "Mip-Splatting's 2D mip filter (gsplat's antialiased mode) in training and every render: each Gaussian's "
+        "opacity times sqrt(det S / det(S + 0.3 I)) of its 2D covariance S, so the 0.3 px^2 low-pass keeps what "
+        "it covers instead of widening it, and a view that sees the surface smaller than the labels did sees "
+        "it area-averaged, not aliased; its PLY is then meant for antialiased renderers",
     )
     offcentre_labels: int = opt(
         0,
@@ -308,7 +321,8 @@ def train(
     backend = resolve_backend(cfg.backend, dev.type == "cuda")  # on first use this loads (or builds) the C++ backend
     seconds["backend"] = time.perf_counter() - t0
     t = time.perf_counter()
-    labels = make_pseudo_labels(scene, cfg.labels, cfg.res, cfg.fov_deg, cfg.layout, depth_fn)
+    lres = cfg.label_res or cfg.res  # the labels' size; held-out views are res
+    labels = make_pseudo_labels(scene, cfg.labels, lres, cfg.fov_deg, cfg.layout, depth_fn)
     heldout = []
     if cfg.heldout and scene.world is not None:
         heldout = make_heldout_views(scene, cfg.heldout, cfg.res, cfg.fov_deg, cfg.seed)
@@ -324,7 +338,7 @@ def train(
     env = sky_environment(scene) if cfg.sky == "panorama" else None
     # the panorama seen from elsewhere through the cloud as given (no fill: the centre never saw behind edges)
     offcentre = offcentre_labels(
-        scene.rgb, point_cloud, cfg.offcentre_labels, cfg.res, cfg.fov_deg, cfg.offcentre_radius, cfg.seed
+        scene.rgb, point_cloud, cfg.offcentre_labels, lres, cfg.fov_deg, cfg.offcentre_radius, cfg.seed
     )
     for v in (*labels, *offcentre, *heldout):
         v.background = view_background(env, v.camera)
@@ -342,7 +356,7 @@ def train(
             )
     thinning = {"points": len(point_cloud), "points_per_level": {}}
     if cfg.init_pixels_per_point:
-        n_points = points_for_resolution(cfg.res, cfg.fov_deg, cfg.init_pixels_per_point)
+        n_points = points_for_resolution(lres, cfg.fov_deg, cfg.init_pixels_per_point)
         before = len(point_cloud)
         point_cloud, thinning = thin_by_detail(point_cloud, n_points, cfg.init_detail, cfg.init_detail_depth, cfg.seed)
         if fill is not None and len(point_cloud) < before:  # the late fill thinned as the cloud was
@@ -397,13 +411,13 @@ def train(
         None if labels[0].background is None else torch.from_numpy(np.stack([v.background for v in views])).to(dev)
     )
     # coarse to fine: the same labels at res // 2 (area means; pixel centres at i + 0.5, so K scales with the size)
-    coarse_steps = int(cfg.coarse_until * cfg.iters) if cfg.res // 2 >= COARSE_MIN_SIZE else 0
+    coarse_steps = int(cfg.coarse_until * cfg.iters) if lres // 2 >= COARSE_MIN_SIZE else 0
     coarse = None  # (size, targets, teacher depths, masks, Ks, backgrounds) of the coarse steps, if any are left
     if coarse_steps > start:
-        small = cfg.res // 2
+        small = lres // 2
         area = lambda x: None if x is None else F.interpolate(x.movedim(-1, 1), size=small, mode="area").movedim(1, -1)  # noqa: E731
         teachers_small = None if teachers is None else area(teachers[..., None])[..., 0]
-        Ks_small = Ks * torch.tensor([[small / cfg.res], [small / cfg.res], [1.0]], device=dev)
+        Ks_small = Ks * torch.tensor([[small / lres], [small / lres], [1.0]], device=dev)
         masks_small = None if masks is None else area(masks[..., None].float())[..., 0] > 0.999
         coarse = (small, area(targets), teachers_small, masks_small, Ks_small, area(backgrounds))
     first_bad = torch.full((), -1, dtype=torch.long, device=dev)  # first iteration with a non-finite loss
@@ -442,9 +456,9 @@ def train(
         opt.param_groups[0]["lr"] = lr
         k = int(order[it])
         deg = min(cfg.sh_degree, it // cfg.sh_increase_every) if cfg.sh_increase_every else 0
-        footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, cfg.res)  # a new or resized model
+        footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, lres)  # a new or resized model
         res, targets_it, teachers_it, masks_it, Ks_it, backgrounds_it = (
-            coarse if it < coarse_steps else (cfg.res, targets, teachers, masks, Ks, backgrounds)
+            coarse if it < coarse_steps else (lres, targets, teachers, masks, Ks, backgrounds)
         )
         img, alpha, depth, meta = _render(
             model,
@@ -480,7 +494,7 @@ def train(
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
-        footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, cfg.res, it + 1)
+        footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, lres, it + 1)
         sync_now = (
             (cfg.history_every and (it + 1) % cfg.history_every == 0)
             or it + 1 == cfg.iters

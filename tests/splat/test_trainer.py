@@ -13,6 +13,7 @@ from panorecon.scenes import load_scene
 from panorecon.sources import run_source
 from panorecon.splat import evaluate as evaluate_mod
 from panorecon.splat import trainer as trainer_mod
+from panorecon.splat.initial import points_for_resolution
 from panorecon.splat.model import GaussianModel
 from panorecon.splat.ply import load_ply
 from panorecon.splat.rasterize import resolve_backend
@@ -131,8 +132,6 @@ def test_bad_trainer_settings_are_one_clear_error_before_anything_is_written(set
 
 def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     scene, pc, depth_fn = setup
-    from panorecon.splat.initial import points_for_resolution
-
     c = dict(
         iters=1,
         res=16,
@@ -521,6 +520,33 @@ def test_a_half_resolution_render_is_the_2x2_mean_of_the_full_one():
     assert (render(half, 32) - ref).abs().mean() < 0.01  # the finer sampling's blur only
     assert (centroid(render(half, 32)) - centroid(ref)).abs().max() < 0.03  # in pixels of the half-size view
     assert (centroid(render(shifted, 32)) - centroid(ref)).abs().min() > 0.2
+
+
+def test_labels_at_their_own_size_and_antialiased_rendering_reach_every_render(setup, tmp_path, monkeypatch):
+    """label_res: the training steps and the pseudo-label evaluation render at the labels' size, the held-out views
+    at res; antialiased: every render, trained or evaluated, takes the 2D mip filter."""
+    scene, pc, depth_fn = setup
+    calls = []
+    real = evaluate_mod.rasterize
+
+    def spy(*a, **k):
+        calls.append((a[7], torch.is_grad_enabled(), k.get("antialiased")))
+        return real(*a, **k)
+
+    monkeypatch.setattr(evaluate_mod, "rasterize", spy)
+    c = cfg(iters=4, res=16, label_res=24, labels=6, heldout=2, coarse_until=0, antialiased=True, history_every=0)
+    m = train(scene, pc, c, tmp_path / "lr", depth_fn, progress=False)
+    assert [w for w, grad, _ in calls if grad] == [24] * 4
+    evaluated = [w for w, grad, _ in calls if not grad]
+    assert evaluated.count(24) >= 6 and evaluated.count(16) >= 2 and set(evaluated) == {16, 24}
+    assert all(aa is True for *_, aa in calls)
+    assert m["config"]["label_res"] == 24 and np.isfinite(m["pseudo-label"]["psnr"])
+    flat = dict(iters=1, labels=4, heldout=0, checkpoint_every=0, history_every=0, init_pixels_per_point=4.0)
+    flat["init_detail"] = 0.0  # the label resolution everywhere: the cloud follows the labels' size, not res
+    got = train(scene, pc, cfg(**flat, res=16, label_res=24), tmp_path / "n", progress=False)["initial_gaussians"]
+    assert got == points_for_resolution(24, 60.0, 4.0) > points_for_resolution(16, 60.0, 4.0)
+    with pytest.raises(ValueError, match="label_res"):
+        cfg(label_res=-1)
 
 
 def test_the_depth_weight_pulls_the_rendered_depth_toward_the_teachers(setup, tmp_path):

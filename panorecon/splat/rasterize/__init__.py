@@ -53,6 +53,17 @@ def resolve_backend(backend: str, cuda_tensors: bool = False) -> str:
     return chosen
 
 
+def antialias_compensation(conics: torch.Tensor, eps2d: float) -> torch.Tensor:
+    """sqrt(det S / det(S + eps2d I)) [...] of each 2D covariance S, from the conics [..., 3] = (a, b, c) of
+    (S + eps2d I)^-1: det S / det(S + eps2d I) = det((I - eps2d Q)) = 1 - eps2d (a + c) + eps2d^2 (a c - b^2)
+    with Q the conic. In float32 the sum cancels to ~1e-7 absolute for sub-pixel Gaussians (S -> 0, Q -> I /
+    eps2d), an error of at most ~3e-4 in a compensation that small; clamped at 0 (a degenerate S), and at
+    1e-12 under the root so its gradient stays finite."""
+    a, b, c = conics.unbind(-1)
+    ratio = 1 - eps2d * (a + c) + eps2d * eps2d * (a * c - b * b)
+    return torch.sqrt(ratio.clamp(min=1e-12)) * (ratio > 0)
+
+
 def rasterize(
     means,
     quats,
@@ -70,6 +81,7 @@ def rasterize(
     backgrounds=None,
     backend: str = "auto",
     eps2d: float = 0.3,
+    antialiased: bool = False,
     tile_size: int = 16,
     return_contrib: bool = False,
 ):
@@ -83,6 +95,9 @@ def rasterize(
     world-to-camera (OpenCV); Ks [C,3,3]. Returns image [C,H,W,3], alpha [C,H,W,1], depth [C,H,W,1]
     (accumulated z; expected depth = depth / alpha) and meta: means2d [C,N,2], conics, depths [C,N],
     radii [C,N], backend, and with ``return_contrib`` weight_sum / weight_max / trans_max [C,N] (detached).
+    ``antialiased``: each Gaussian's opacity in each camera times ``antialias_compensation`` (Mip-Splatting's 2D
+    mip filter, gsplat's ``rasterize_mode='antialiased'``): the ``eps2d`` low-pass then keeps a Gaussian's
+    integrated alpha instead of widening it, so one smaller than a pixel fades rather than grows.
     """
     backend = resolve_backend(backend, means.is_cuda)
     if isinstance(colors, (tuple, list)):
@@ -106,6 +121,7 @@ def rasterize(
             far_plane,
             backgrounds,
             eps2d,
+            antialiased,
             tile_size,
             return_contrib,
         )
@@ -135,6 +151,8 @@ def rasterize(
             cols = cpu_backend.sh_colors(sh_degree, colors, means, campos, radii)
         else:
             cols = sh_colors_reference(sh_degree, colors, means, campos)
+    if antialiased:  # [C, N]: the compensation differs per camera
+        opacities = opacities[None] * antialias_compensation(conics, eps2d)
     if backend == "cpu":
         image, alpha, depth, contrib = cpu_backend.composite(
             means2d, conics, cols, opacities, depths, radii, width, height, tile_size, return_contrib
@@ -151,4 +169,4 @@ def rasterize(
     return image, alpha, depth, meta
 
 
-__all__ = ["rasterize", "project_gaussians", "quat_to_rotmat", "sh_to_rgb", "BACKENDS"]
+__all__ = ["rasterize", "antialias_compensation", "project_gaussians", "quat_to_rotmat", "sh_to_rgb", "BACKENDS"]

@@ -278,7 +278,21 @@ def composite(
     return_contrib: bool = False,
 ):
     """Same contract as ``torch_backend.rasterize_tiles`` without backgrounds; float32. -> (image, alpha,
-    depth, contrib dict of weight_sum / weight_max / trans_max [C,N] or None)."""
+    depth, contrib dict of weight_sum / weight_max / trans_max [C,N] or None). Opacities per camera [C,N]
+    composite one camera at a time (the kernel reads one [N] vector)."""
+    if opacities.dim() == 2 and len(opacities) > 1:
+        parts = [
+            composite(
+                means2d[i : i + 1], conics[i : i + 1], colors[i : i + 1], opacities[i], depths[i : i + 1],
+                radii[i : i + 1], width, height, tile, return_contrib,
+            )
+            for i in range(len(opacities))
+        ]  # fmt: skip
+        image, alpha, depth = (torch.cat([p[k] for p in parts]) for k in range(3))
+        contrib = {k: torch.cat([p[3][k] for p in parts]) for k in parts[0][3]} if return_contrib else None
+        return image, alpha, depth, contrib
+    if opacities.dim() == 2:
+        opacities = opacities[0]
     f = lambda t: t.float().contiguous()  # noqa: E731
     image, alpha, depth, w_sum, w_max, t_max = _Composite.apply(
         f(means2d),

@@ -94,6 +94,7 @@ def rasterize_gsplat(
     far_plane,
     backgrounds,
     eps2d,
+    antialiased,
     tile_size,
     return_contrib: bool = False,
 ):
@@ -120,6 +121,7 @@ def rasterize_gsplat(
         near_plane=near_plane,
         far_plane=far_plane,
         eps2d=eps2d,
+        rasterize_mode="antialiased" if antialiased else "classic",
         sh_degree=sh_degree,
         packed=False,
         tile_size=tile_size,

@@ -28,7 +28,7 @@ def rasterize_tiles(
     backgrounds=None,
     return_contrib: bool = False,
 ):
-    """means2d [C,N,2], conics [C,N,3], colors [C,N,D], opacities [N], depths [C,N], radii [C,N] ->
+    """means2d [C,N,2], conics [C,N,3], colors [C,N,D], opacities [N] or [C,N], depths [C,N], radii [C,N] ->
     (image [C,H,W,D], alpha [C,H,W,1], depth [C,H,W,1] accumulated z, contrib dict or None)."""
     C, N, D = colors.shape
     dev, dt = colors.device, colors.dtype
@@ -94,7 +94,8 @@ def _tile(c, hit, means2d, conics, colors, opacities, depths, tx, ty, tw, th, co
     d = px[:, None, :] - means2d[c, hit][None]  # [P, G, 2]
     a, b, cc = conics[c, hit].unbind(-1)
     sigma = 0.5 * (a * d[..., 0] ** 2 + cc * d[..., 1] ** 2) + b * d[..., 0] * d[..., 1]
-    al = torch.clamp(opacities[hit] * torch.exp(-sigma), max=ALPHA_MAX)
+    o = opacities[c, hit] if opacities.dim() == 2 else opacities[hit]
+    al = torch.clamp(o * torch.exp(-sigma), max=ALPHA_MAX)
     al = torch.where((sigma >= 0) & (al >= ALPHA_MIN), al, torch.zeros_like(al))
     keep = torch.cumprod(1 - al.detach(), dim=1) > T_MIN  # monotone: once it fails every later one fails
     al = torch.where(keep, al, torch.zeros_like(al))
