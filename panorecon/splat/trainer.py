@@ -45,6 +45,7 @@ from .model import PARAM_NAMES, GaussianModel, flatten_to_discs
 from .offcentre import offcentre_labels
 from .ply import save_ply
 from .rasterize import BACKENDS, resolve_backend
+from .regularisers import anchor_height, depth_spread, render_depth_sq, surface_anchor, surface_distances
 from .strategy import STRATEGIES, edit_parameters
 
 log = logging.getLogger("panorecon.train")
@@ -124,6 +125,19 @@ class TrainConfig:
     w_ssim: float = opt(0.2, "weight of 1 - SSIM (eq. 12)", check=C.LOSS_WEIGHT)
     w_depth: float = opt(
         0.05, "weight of the Pearson depth term against the teacher's view depth (eq. 10-11)", check=C.LOSS_WEIGHT
+    )
+    w_spread: float = opt(
+        0.0,
+        "weight of the depth spread: the blending weights' depth variance along each ray over its squared mean depth "
+        "(splat/regularisers.py), so no stack of Gaussians along a centre ray blends right only from the centre; one "
+        "more render of each label view per step; 0: none",
+        check=C.LOSS_WEIGHT,
+    )
+    w_anchor: float = opt(
+        0.0,
+        "weight of the surface anchor: each Gaussian held within ~10 % of the given cloud's surface along its ray "
+        "from the centre, where no label sees it move (splat/regularisers.py); 0: none",
+        check=C.LOSS_WEIGHT,
     )
     footprint_filter: float = opt(
         0.0,
@@ -401,6 +415,9 @@ def train(
         if dev.type == "cuda" and "cuda_rng" in state:
             torch.cuda.set_rng_state(state["cuda_rng"], dev)
         log.info("resuming %s at step %d of %d", ckpt, start, cfg.iters)
+    surface = None  # the given cloud's surface seen from the centre, in label-pixel bins (the anchor's target)
+    if cfg.w_anchor:
+        surface = torch.from_numpy(surface_distances(given_cloud.xyz, anchor_height(lres, cfg.fov_deg))).to(dev)
     # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
     views = labels + offcentre  # the views trained on: teacher depth for the centre's, masks for the others'
     targets = torch.from_numpy(np.stack([v.rgb for v in views])).to(dev)
@@ -487,6 +504,11 @@ def train(
             cfg.w_ssim,
             cfg.w_depth if teacher is not None else 0.0,
         )
+        if cfg.w_anchor:
+            loss = loss + cfg.w_anchor * surface_anchor(model.means, surface)
+        if cfg.w_spread:
+            s2 = render_depth_sq(model, viewmats[k : k + 1], Ks_it[k : k + 1], res, res, backend, cfg.antialiased)
+            loss = loss + cfg.w_spread * depth_spread(alpha[..., 0], depth[..., 0], s2)
         # recorded on the device and checked where the loop syncs anyway (history, checkpoints, the end)
         first_bad = torch.where((first_bad < 0) & ~torch.isfinite(loss.detach()), it, first_bad)
         loss.backward()

@@ -574,6 +574,44 @@ def test_the_depth_weight_pulls_the_rendered_depth_toward_the_teachers(setup, tm
     assert strong > without + 0.05, (without, strong)
 
 
+def test_the_surface_anchor_holds_the_gaussians_on_the_clouds_surface(setup, tmp_path):
+    """TrainConfig.w_anchor reaches the loss: after training, the Gaussians of a run with a strong anchor lie
+    nearer the given cloud's surface along their rays (median |ln(r / D)|) than those of a run without it."""
+    from panorecon.splat.regularisers import anchor_height, surface_anchor, surface_distances
+
+    scene, pc, depth_fn = setup
+
+    def off_surface(w_anchor: float) -> float:
+        c = cfg(iters=150, res=16, labels=12, heldout=0, checkpoint_every=0, history_every=0, w_anchor=w_anchor)
+        c = dataclasses.replace(c, lr_means=1.6e-2, lr_means_final=1.6e-3)  # moves enough in few steps
+        train(scene, pc, c, tmp_path / f"a{w_anchor}", depth_fn, progress=False)
+        means = load_ply(tmp_path / f"a{w_anchor}" / "point_cloud.ply").means.detach()
+        surface = torch.from_numpy(surface_distances(pc.xyz, anchor_height(c.res, c.fov_deg)))
+        return float(surface_anchor(means, surface))
+
+    without, anchored = off_surface(0.0), off_surface(1000.0)
+    assert anchored < 0.6 * without, (without, anchored)
+
+
+def test_the_depth_spread_weight_reaches_the_loss(setup, tmp_path, monkeypatch):
+    """TrainConfig.w_spread: each training step adds the spread of its own render (one more render, of z^2);
+    with the weight 0 nothing extra is rendered."""
+    scene, pc, depth_fn = setup
+    calls = []
+    real = trainer_mod.depth_spread
+
+    def spy(*a):
+        calls.append(a[0].shape)
+        return real(*a)
+
+    monkeypatch.setattr(trainer_mod, "depth_spread", spy)
+    c = cfg(iters=3, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=0)
+    train(scene, pc, c, tmp_path / "none", depth_fn, progress=False)
+    assert calls == []
+    m = train(scene, pc, dataclasses.replace(c, w_spread=1.0), tmp_path / "on", depth_fn, progress=False)
+    assert calls == [(1, 16, 16)] * 3 and np.isfinite(m["pseudo-label"]["psnr"])
+
+
 @pytest.fixture(scope="module")
 def psnr_at_scale(tmp_path_factory):
     """Pseudo-label PSNR of a short training on bedroom (128 px) given at its true size times ``s``: the true

@@ -1,0 +1,131 @@
+"""Regularisers of the Gaussians' geometry, beside the photometric and depth terms of ``losses.py``.
+
+Depth spread (TrainConfig.w_spread): every pseudo-label camera sits at the panorama centre, so a stack of
+semi-transparent Gaussians spread along a pixel's ray blends to the right colour there and to a smeared one from
+anywhere else. The term is the blending weights' depth variance along each ray, relative to its squared mean
+depth (scale-free: a cloud in arbitrary units, a room or a valley weigh alike), as Mip-NeRF 360's and 2DGS's
+distortion losses concentrate the weights. With the weights w_i and view depths z_i of one pixel's Gaussians,
+A = sum w_i (its alpha), S1 = sum w_i z_i (the accumulated depth every render has) and S2 = sum w_i z_i^2 (one more
+render, of z^2 as colour):
+
+    sum_i sum_j w_i w_j (z_i - z_j)^2 / 2 = A S2 - S1^2,
+
+so the relative variance of the normalised weights is A S2 / S1^2 - 1, and the term is its mean over pixels,
+weighted by A (an empty pixel has no spread to penalise). ``depth_spread_reference`` is the double sum itself.
+float32: A S2 / S1^2 - 1 keeps ~1e-7 of relative variance (a spread of 0.03 % of the depth); rounding below 0
+is clamped.
+
+Surface anchor (TrainConfig.w_anchor): training moves the Gaussians along the centre's rays, where no label sees
+the difference (on bedroom with a near-true teacher the fused cloud lies 0.12 % from the true surface, median, and
+the Gaussians after 1,500 steps 1.7 %: docs/benchmarks.md). The term holds each Gaussian near the fused surface
+along its own ray: with D(u) the distance of the nearest point of the given cloud in the ERP bin of direction u
+(``surface_distances``, bins of the label pixel's size) and d = ln(r / D(u)) for a Gaussian at distance r, it is
+the mean over Gaussians of min(d^2, ANCHOR_BAND^2). A Gaussian more than ANCHOR_BAND (in ln distance) from the
+surface, the disocclusion fill behind a depth edge or a point of another layer, is left where it is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..geometry.sphere import direction_to_erp_pixel
+from .rasterize import rasterize
+
+SPREAD_EPS = 1e-12  # S1^2 below this (a pixel nothing covers): no spread
+ANCHOR_BAND = 0.1  # ln distance: within about 10 % of the fused surface a Gaussian is pulled onto it
+
+
+def depth_spread(alpha: torch.Tensor, depth_sum: torch.Tensor, depth_sq_sum: torch.Tensor) -> torch.Tensor:
+    """Mean over pixels of A (A S2 / S1^2 - 1): alpha A, accumulated depth S1 and accumulated squared depth S2,
+    each [..., H, W] (any units; the result is scale-free)."""
+    s1_sq = depth_sum.square()
+    covered = s1_sq > SPREAD_EPS
+    rel = torch.where(covered, alpha * depth_sq_sum / torch.where(covered, s1_sq, 1.0) - 1, 0.0)
+    return (alpha * rel.clamp(min=0)).mean()
+
+
+def depth_spread_reference(weights: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """The same from each pixel's blending weights ``weights`` [P, G] and its Gaussians' view depths ``z`` [G],
+    by the double sum: mean over pixels of A sum_ij w_i w_j (z_i - z_j)^2 / 2 / S1^2."""
+    pair = (weights[:, :, None] * weights[:, None, :] * (z[:, None] - z[None, :]).square()).sum((1, 2)) / 2
+    A, S1 = weights.sum(1), weights @ z
+    covered = S1.square() > SPREAD_EPS
+    return torch.where(covered, A * pair / torch.where(covered, S1.square(), 1.0), 0.0).mean()
+
+
+def render_depth_sq(model, viewmats, Ks, width: int, height: int, backend: str, antialiased: bool) -> torch.Tensor:
+    """S2 [C, height, width]: each pixel's blending-weighted sum of its Gaussians' squared view depths (metres^2 or
+    the cloud's units), rendered as the colour (z^2, 0, 0) with the model's rendered scales and opacities."""
+    scales, opacities = model.rendered()
+    z = torch.einsum("cj,nj->cn", viewmats[:, 2, :3], model.means) + viewmats[:, 2, 3:]  # [C, N] view depth
+    colours = torch.stack([z.square(), torch.zeros_like(z), torch.zeros_like(z)], -1)
+    img = rasterize(
+        model.means,
+        model.quats,
+        scales,
+        opacities,
+        colours,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane=model.near_plane,
+        backend=backend,
+        antialiased=antialiased,
+    )[0]
+    return img[..., 0]
+
+
+def _erp_bins(directions, height: int):
+    """Nearest ERP bin (row, col) of directions [..., 3] on a height x 2 height grid (columns wrap)."""
+    rows, cols = direction_to_erp_pixel(directions, height, 2 * height)
+    if isinstance(rows, torch.Tensor):
+        return rows.round().long().clamp(0, height - 1), cols.round().long() % (2 * height)
+    return np.clip(np.rint(rows).astype(np.int64), 0, height - 1), np.rint(cols).astype(np.int64) % (2 * height)
+
+
+def surface_distances(xyz: np.ndarray, height: int) -> np.ndarray:
+    """[height, 2 height] float32: in each ERP bin the distance (the cloud's units) of the nearest of the points
+    ``xyz`` [N, 3] from the centre, the surface the centre sees; NaN where no point falls. ``height``: 180 / the
+    label pixel's size in degrees (``anchor_height``)."""
+    xyz = np.asarray(xyz, np.float64)
+    r = np.linalg.norm(xyz, axis=1)
+    keep = np.isfinite(r) & (r > 0)
+    rows, cols = _erp_bins(xyz[keep], height)
+    grid = np.full((height, 2 * height), np.inf)
+    np.minimum.at(grid, (rows, cols), r[keep])
+    grid[np.isinf(grid)] = np.nan
+    return grid.astype(np.float32)
+
+
+def anchor_height(res: int, fov_deg: float) -> int:
+    """ERP height whose bins are the label pixel's size: 180 deg / (fov_deg / res)."""
+    return max(2, round(180.0 * res / fov_deg))
+
+
+def surface_anchor(means: torch.Tensor, surface: torch.Tensor) -> torch.Tensor:
+    """Mean over the Gaussians with a surface bin of min(ln(r / D)^2, ANCHOR_BAND^2): means [N, 3] (the centre at
+    0), surface [H, 2H] from ``surface_distances`` on the means' device. Scale-free; 0 when no Gaussian has one."""
+    rows, cols = _erp_bins(means.detach(), surface.shape[0])
+    D = surface[rows, cols]
+    ok = torch.isfinite(D)
+    d = torch.log(means.norm(dim=-1).clamp_min(1e-12)) - torch.log(torch.where(ok, D, 1.0))
+    return torch.where(ok, d.square().clamp(max=ANCHOR_BAND**2), 0.0).sum() / ok.sum().clamp_min(1)
+
+
+def surface_anchor_reference(means: torch.Tensor, xyz: np.ndarray, height: int) -> torch.Tensor:
+    """``surface_anchor`` one Gaussian at a time against the points themselves: for each Gaussian the nearest
+    point among those whose direction falls in its own bin, by a loop (slow; the tests' yardstick)."""
+    pts = np.asarray(xyz, np.float64)
+    prow, pcol = _erp_bins(pts, height)
+    pr = np.linalg.norm(pts, axis=1)
+    terms = []
+    for m in means:
+        row, col = _erp_bins(m.detach().double().numpy(), height)
+        same = (prow == row) & (pcol == col)
+        if not same.any():
+            continue
+        d = torch.log(m.double().norm()) - float(np.log(pr[same].min()))
+        terms.append(torch.clamp(d * d, max=ANCHOR_BAND**2))
+    return torch.stack(terms).mean() if terms else means.new_zeros((), dtype=torch.float64)
