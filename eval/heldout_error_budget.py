@@ -10,6 +10,14 @@ and placed in the cloud's frame by its heldout_scale, as the trainer placed them
 - shares: per held-out view, the share of the squared error in holes (pixels whose rendered alpha is below 0.9:
   what the centre never saw and nothing covers) and in pixels whose rendered depth is more than 5 % off the true
   depth (geometry, mostly at depth edges), and the mean PSNR with either share removed;
+- ``classes``: the co-visible pixels split by what they show (within EDGE_PX of a true depth step of more than
+  EDGE_STEP in ln depth; else textured, the true view's grey-level gradient above TEXTURE_GRAD per pixel; else
+  smooth), each class's share of the pixels and of the render's squared error, the render's and the oracle's PSNR
+  there and the gap; and ``distance_ratio_near_1``, the share of co-visible pixels whose true point is seen from
+  the held-out camera within 0.75-1.33 x its distance from the centre (where the labels' scale is the view's);
+- ``surface_offset``: how far along the centre's rays the trained Gaussians lie from the true surface (opacity-
+  weighted median of |r - r_true| / r_true and the weight share beyond 5 %), beside the same for the cloud the run
+  started from (RUN_DIR's ``<source>_cloud.ply``, as ``panorecon train`` writes it; n/a without one);
 - ``swaps``: the held-out scores (all-pixel PSNR; the co-visible pixels' PSNR, the oracle's and the gap,
   ``splat/evaluate.oracle_scores``) of the trained Gaussians as they are and with one thing swapped for its truth
   or removed, no retraining (``SWAPS``).
@@ -31,6 +39,10 @@ from pathlib import Path
 import numpy as np
 
 FLOATER_REL = 0.05  # a Gaussian whose centre is nearer than (1 - this) x the true distance along its ray: a floater
+EDGE_STEP = 0.05  # ln true depth between neighbouring pixels: a depth edge (or ground seen at a grazing angle)
+EDGE_PX = 2  # pixels within this many of a depth edge are its class
+TEXTURE_GRAD = 0.03  # grey-level gradient per pixel (central differences, [0, 1] images): texture
+OFF_SURFACE = 0.05  # relative distance from the true surface counted as off it
 
 
 def _rays(model):
@@ -146,6 +158,82 @@ SWAPS = {
 }
 
 
+def pixel_classes(view) -> dict:
+    """{class: [h, w] bool} of a held-out ``view``'s co-visible pixels (module docstring, ``classes``)."""
+    from scipy.ndimage import binary_dilation
+
+    ln_depth = np.log(np.nan_to_num(view.depth, nan=1e9).astype(np.float64))  # sky: one far plane
+    step = np.zeros(ln_depth.shape, bool)
+    for axis in (0, 1):
+        jump = np.abs(np.diff(ln_depth, axis=axis)) > EDGE_STEP
+        lo = [slice(None)] * 2
+        hi = [slice(None)] * 2
+        lo[axis], hi[axis] = slice(None, -1), slice(1, None)
+        step[tuple(lo)] |= jump
+        step[tuple(hi)] |= jump
+    edge = binary_dilation(step, iterations=EDGE_PX)
+    gy, gx = np.gradient(view.rgb.astype(np.float64).mean(-1))
+    textured = np.hypot(gx, gy) > TEXTURE_GRAD
+    cov = view.covisible
+    return {"near a depth edge": cov & edge, "textured": cov & ~edge & textured, "smooth": cov & ~edge & ~textured}
+
+
+def distance_ratio(view) -> np.ndarray:
+    """[h, w]: each pixel's true point's distance from the held-out camera over its distance from the panorama
+    centre (1: the centre's labels saw it at this view's scale)."""
+    rays = view.camera.world_rays()
+    dist = np.nan_to_num(view.depth, nan=np.inf).astype(np.float64) * view.camera.z_to_distance_factor()
+    points = view.camera.position + rays * dist[..., None]
+    with np.errstate(invalid="ignore"):
+        return dist / np.linalg.norm(points, axis=-1)
+
+
+def class_scores(kept: list) -> dict:
+    """``classes`` of held-out views ``kept`` [(view, render [h, w, 3])] with an oracle (module docstring)."""
+    sums = {}
+    near_1 = total = 0
+    for v, img in kept:
+        if v.oracle is None:
+            continue
+        se_model = ((img.astype(np.float64) - v.rgb) ** 2).mean(-1)
+        se_oracle = ((np.nan_to_num(v.oracle).astype(np.float64) - v.rgb) ** 2).mean(-1)
+        for name, mask in pixel_classes(v).items():
+            acc = sums.setdefault(name, [0, 0.0, 0.0])
+            acc[0] += int(mask.sum())
+            acc[1] += float(se_model[mask].sum())
+            acc[2] += float(se_oracle[mask].sum())
+        ratio = distance_ratio(v)[v.covisible]
+        near_1 += int(((ratio >= 0.75) & (ratio <= 4 / 3)).sum())
+        total += ratio.size
+    pixels, error = sum(a[0] for a in sums.values()), sum(a[1] for a in sums.values())
+    out = {}
+    for name, (n, sm, so) in sums.items():
+        model_psnr = 10 * np.log10(n / sm) if n else None
+        oracle_psnr = 10 * np.log10(n / so) if n and so > 0 else None
+        out[name] = {
+            "pixel_share": n / pixels if pixels else None,
+            "error_share": sm / error if error else None,
+            "psnr": model_psnr,
+            "oracle_psnr": oracle_psnr,
+            "gap": None if model_psnr is None or oracle_psnr is None else oracle_psnr - model_psnr,
+        }
+    out["distance_ratio_near_1"] = near_1 / total if total else None
+    return out
+
+
+def surface_offset(xyz: np.ndarray, weights: np.ndarray, scene, scale: float) -> dict:
+    """Weighted median of |r - r_true| / r_true of points ``xyz`` [N, 3] (the cloud's frame) along their rays
+    from the centre and the weight share beyond OFF_SURFACE; points whose ray meets sky are left out."""
+    r = np.linalg.norm(xyz, axis=1)
+    truth = _true_distance(scene, xyz / np.maximum(r, 1e-12)[:, None], scale)
+    ok = np.isfinite(truth) & (truth > 0)
+    rel, w = np.abs(r[ok] - truth[ok]) / truth[ok], weights[ok]
+    order = np.argsort(rel)
+    cum = np.cumsum(w[order])
+    median = float(rel[order][np.searchsorted(cum, cum[-1] / 2)])
+    return {"median": median, "share_off": float(w[rel > OFF_SURFACE].sum() / w.sum()), "points": int(ok.sum())}
+
+
 def scores(model, views, cfg) -> dict:
     """The trainer's held-out scores of ``model`` on ``views``: all-pixel PSNR (as ``splat/evaluate._evaluate``)
     and ``oracle_scores`` on the co-visible pixels."""
@@ -223,6 +311,22 @@ def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> 
         else v
         for v in views
     ]
+    kept = []
+    with torch.no_grad():
+        for v in views:
+            kept.append((v, _render(model, [v], cfg, model.sh_degree, "cpu")[0][0].clamp(0, 1).numpy()))
+    clouds = [p for p in run.glob("*_cloud.ply") if p.name != "point_cloud.ply"]
+    offset = {
+        "trained": surface_offset(
+            model.means.detach().double().numpy(), model.opacities().detach().double().numpy(), scene, scale
+        ),
+        "initial cloud": "n/a: no <source>_cloud.ply in the run folder",
+    }
+    if clouds:
+        from panorecon.geometry import PointCloud
+
+        xyz = PointCloud.load_ply(clouds[0]).xyz.astype(np.float64)
+        offset["initial cloud"] = surface_offset(xyz, np.ones(len(xyz)), scene, scale)
     swaps = {}
     for name, swap in SWAPS.items():
         swapped = swap(model, scene, scale)
@@ -236,6 +340,8 @@ def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> 
         "depth_off_error_share": float(mse[:, 2].sum() / mse[:, 0].sum()),
         "psnr_without_hole_error": float(np.mean(10 * np.log10(1 / (mse[:, 0] - mse[:, 1])))),
         "psnr_without_depth_off_error": float(np.mean(10 * np.log10(1 / (mse[:, 0] - mse[:, 2])))),
+        "classes": class_scores(kept),
+        "surface_offset": offset,
         "swaps": swaps,
     }
 

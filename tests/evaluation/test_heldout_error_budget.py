@@ -116,3 +116,72 @@ def test_snap_and_floaters_follow_the_true_distance():
     assert (
         len(kept) == int((r >= (1 - script.FLOATER_REL) * truth).sum()) == int((r / truth > 0.99).sum())
     )  # 0.5, 0.9 gone
+
+
+def test_pixel_classes_partition_the_covisible_pixels_and_the_gap_is_read_per_class(run):
+    out, metrics = run
+    budget = script.main([str(out), "--scene", "bedroom", "--width", "128"])
+    classes = budget["classes"]
+    names = ("near a depth edge", "textured", "smooth")
+    assert sum(classes[n]["pixel_share"] for n in names) == pytest.approx(1.0)
+    assert sum(classes[n]["error_share"] for n in names) == pytest.approx(1.0)
+    for n in names:
+        if classes[n]["pixel_share"]:
+            assert classes[n]["gap"] == pytest.approx(classes[n]["oracle_psnr"] - classes[n]["psnr"])
+    assert 0 <= classes["distance_ratio_near_1"] <= 1
+    views = script.heldout_views(load_scene("bedroom", 128), metrics)
+    for v in views:
+        masks = list(script.pixel_classes(v).values())
+        assert (sum(m.astype(int) for m in masks) == v.covisible.astype(int)).all()  # disjoint, covering
+
+
+def test_distance_ratio_of_a_camera_moved_towards_a_wall():
+    """A camera 0.5 m along +x looking at a wall at x = 2 sees its centre 1.5 m away, 2 m from the panorama
+    centre: ratio 0.75; a camera at the centre reads 1 everywhere."""
+    import numpy as np
+
+    from panorecon.geometry import centred_camera
+    from panorecon.splat.labels import LabelView
+
+    for position, expect in (((0.5, 0.0, 0.0), 0.75), ((0.0, 0.0, 0.0), 1.0)):
+        cam = centred_camera(np.array([1.0, 0, 0]), 9, 60.0, position)
+        z = np.full((9, 9), 2.0 - position[0], np.float32)  # a wall at x = 2: the same z-depth at every pixel
+        ratio = script.distance_ratio(LabelView(cam, np.zeros((9, 9, 3), np.float32), z))
+        assert ratio[4, 4] == pytest.approx(expect, rel=1e-6)
+        if expect == 1.0:
+            np.testing.assert_allclose(ratio, 1.0, rtol=1e-6)
+
+
+def test_surface_offset_of_points_on_and_off_the_true_surface():
+    import numpy as np
+
+    from panorecon.geometry import erp_directions
+
+    scene = load_scene("bedroom", 128)
+    d = erp_directions(64, 128).reshape(-1, 3)
+    t = script._true_distance(scene, d, 1.0)
+    ok = np.isfinite(t)
+    on = d[ok] * t[ok, None]
+    exact = script.surface_offset(on, np.ones(len(on)), scene, 1.0)
+    assert exact["median"] < 1e-5 and exact["share_off"] == 0
+    off = script.surface_offset(on * 1.1, np.ones(len(on)), scene, 1.0)
+    assert off["median"] == pytest.approx(0.1, rel=1e-4) and off["share_off"] == 1.0
+    # in the cloud's frame: truth = scale x cloud
+    assert script.surface_offset(on / 2.0, np.ones(len(on)), scene, 2.0)["median"] < 1e-5
+
+
+def test_surface_offset_reads_the_starting_cloud_when_the_run_has_it(run, tmp_path):
+    import shutil
+
+    from panorecon.sources import run_source
+
+    out, _ = run
+    budget = script.main([str(out), "--scene", "bedroom", "--width", "128"])
+    assert budget["surface_offset"]["initial cloud"].startswith("n/a")
+    assert 0 <= budget["surface_offset"]["trained"]["median"] < 1
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    pc, _ = run_source(load_scene("bedroom", 128), "fibonacci", "sim:relative")
+    pc.save_ply(copy / "fibonacci_cloud.ply")
+    cloud = script.main([str(copy), "--scene", "bedroom", "--width", "128"])["surface_offset"]["initial cloud"]
+    assert 0 <= cloud["median"] < 0.05 and cloud["points"] > 0
