@@ -281,7 +281,7 @@ def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> 
     metrics = json.loads((run / "metrics.json").read_text())
     c = metrics["config"]
     views = heldout_views(scene, metrics, n, res)
-    cfg = TrainConfig(res=res or c["res"], fov_deg=c["fov_deg"], backend="cpu")
+    cfg = TrainConfig(res=res or c["res"], fov_deg=c["fov_deg"], backend="cpu", antialiased=c.get("antialiased", False))
     model = load_ply(run / "point_cloud.ply")
     rows = []
     for v in views:

@@ -185,3 +185,17 @@ def test_surface_offset_reads_the_starting_cloud_when_the_run_has_it(run, tmp_pa
     pc.save_ply(copy / "fibonacci_cloud.ply")
     cloud = script.main([str(copy), "--scene", "bedroom", "--width", "128"])["surface_offset"]["initial cloud"]
     assert 0 <= cloud["median"] < 0.05 and cloud["points"] > 0
+
+
+def test_an_antialiased_run_is_read_as_it_was_trained(tmp_path):
+    """The budget renders a run with the 2D mip filter when the run trained with it: its 'as trained' reading is
+    the trainer's own held-out score."""
+    scene = load_scene("bedroom", 128)
+    pc, report = run_source(scene, "fibonacci", "sim:relative")
+    cfg = TrainConfig(
+        iters=20, res=24, label_res=32, labels=12, heldout=3, checkpoint_every=0, history_every=0, antialiased=True
+    )
+    metrics = train(scene, pc, cfg, tmp_path, progress=False, device="cpu", heldout_scale=cloud_scale(report))
+    as_trained = script.main([str(tmp_path), "--scene", "bedroom", "--width", "128"])["swaps"]["as trained"]
+    for key in ("psnr", "oracle_gap"):
+        assert as_trained[key] == pytest.approx(metrics["held-out"][key], abs=1e-3), key
