@@ -52,7 +52,8 @@ def test_gsplat_is_refused_clearly_where_it_cannot_run():
 
 @pytest.mark.cuda
 @needs_gsplat
-def test_gsplat_matches_torch_values_and_gradients():
+@pytest.mark.parametrize("antialiased", [False, True])
+def test_gsplat_matches_torch_values_and_gradients(antialiased):
     g = torch.Generator().manual_seed(0)
     n = 200
     means = torch.stack(
@@ -77,7 +78,9 @@ def test_gsplat_matches_torch_values_and_gradients():
     for backend, dev in (("torch", "cpu"), ("gsplat", "cuda")):
         leaves = [t.clone().to(dev).requires_grad_(True) for t in scene]
         m, q, s, o, sh = leaves
-        img, alpha, depth, _ = rasterize(m, q, s, o, sh, Vs.to(dev), Ks.to(dev), 64, 48, sh_degree=3, backend=backend)
+        img, alpha, depth, _ = rasterize(
+            m, q, s, o, sh, Vs.to(dev), Ks.to(dev), 64, 48, sh_degree=3, backend=backend, antialiased=antialiased
+        )
         (img.sum() + alpha.sum() + 0.1 * depth.sum()).backward()
         out[backend] = [img.detach().cpu(), alpha.detach().cpu()] + [t.grad.cpu() for t in leaves]
     for a, b in zip(out["gsplat"], out["torch"]):
