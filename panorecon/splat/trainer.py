@@ -70,7 +70,9 @@ class TrainConfig:
     """The trainer's settings, checked when built (one ValueError naming the field and what was expected)."""
 
     iters: int = opt(3000, "optimisation steps (one pseudo-label view per step)", check=C.ITERS)
-    res: int = opt(128, "pseudo-label and held-out view size in pixels (square)", check=C.LABEL_RES)
+    res: int = opt(
+        128, "held-out view size in pixels (square), and the pseudo-labels' unless label_res is set", check=C.LABEL_RES
+    )
     labels: int = opt(240, "number of dense pseudo-label views (Table 5: 120-360)", check=C.LABELS)
     label_res: int = opt(
         0,
