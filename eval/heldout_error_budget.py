@@ -163,14 +163,13 @@ def pixel_classes(view) -> dict:
     from scipy.ndimage import binary_dilation
 
     ln_depth = np.log(np.nan_to_num(view.depth, nan=1e9).astype(np.float64))  # sky: one far plane
-    step = np.zeros(ln_depth.shape, bool)
-    for axis in (0, 1):
-        jump = np.abs(np.diff(ln_depth, axis=axis)) > EDGE_STEP
-        lo = [slice(None)] * 2
-        hi = [slice(None)] * 2
-        lo[axis], hi[axis] = slice(None, -1), slice(1, None)
-        step[tuple(lo)] |= jump
-        step[tuple(hi)] |= jump
+    step = np.zeros(ln_depth.shape, bool)  # both pixels of every step
+    rows = np.abs(np.diff(ln_depth, axis=0)) > EDGE_STEP
+    step[:-1] |= rows
+    step[1:] |= rows
+    cols = np.abs(np.diff(ln_depth, axis=1)) > EDGE_STEP
+    step[:, :-1] |= cols
+    step[:, 1:] |= cols
     edge = binary_dilation(step, iterations=EDGE_PX)
     gy, gx = np.gradient(view.rgb.astype(np.float64).mean(-1))
     textured = np.hypot(gx, gy) > TEXTURE_GRAD
@@ -283,13 +282,14 @@ def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> 
     views = heldout_views(scene, metrics, n, res)
     cfg = TrainConfig(res=res or c["res"], fov_deg=c["fov_deg"], backend="cpu", antialiased=c.get("antialiased", False))
     model = load_ply(run / "point_cloud.ply")
-    rows = []
+    rows, kept = [], []  # kept: (view, render) for the class reading
     for v in views:
         with torch.no_grad():
             img, alpha, depth, _ = _render(model, [v], cfg, model.sh_degree, "cpu")
+        kept.append((v, img[0].clamp(0, 1).numpy()))
         a = alpha[0, ..., 0].numpy()
         z = depth[0, ..., 0].numpy() / np.maximum(a, 1e-6)
-        se = ((img[0].clamp(0, 1).numpy().astype(np.float64) - v.rgb) ** 2).mean(-1)  # float64 sums
+        se = ((kept[-1][1].astype(np.float64) - v.rgb) ** 2).mean(-1)  # float64 sums
         hole = a < 0.9
         with np.errstate(invalid="ignore", divide="ignore"):
             off = ~hole & (np.abs(z - v.depth) > 0.05 * v.depth)  # sky (NaN truth) is never "off"
@@ -311,10 +311,6 @@ def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> 
         else v
         for v in views
     ]
-    kept = []
-    with torch.no_grad():
-        for v in views:
-            kept.append((v, _render(model, [v], cfg, model.sh_degree, "cpu")[0][0].clamp(0, 1).numpy()))
     clouds = [p for p in run.glob("*_cloud.ply") if p.name != "point_cloud.ply"]
     offset = {
         "trained": surface_offset(
