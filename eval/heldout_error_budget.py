@@ -20,7 +20,14 @@ and placed in the cloud's frame by its heldout_scale, as the trainer placed them
   started from (RUN_DIR's ``<source>_cloud.ply``, as ``panorecon train`` writes it; n/a without one);
 - ``swaps``: the held-out scores (all-pixel PSNR; the co-visible pixels' PSNR, the oracle's and the gap,
   ``splat/evaluate.oracle_scores``) of the trained Gaussians as they are and with one thing swapped for its truth
-  or removed, no retraining (``SWAPS``).
+  or removed, no retraining (``SWAPS``);
+- ``by_distance`` (``--by-distance``): the same scores on views drawn with the run's seed at DISTANCE_BANDS from
+  the panorama centre, from the centre itself to the trainer's 30-70 % of the free-space radius.
+
+``truth-views`` retrains the baseline with N true renders from off-centre positions beside its labels, an upper
+bound on what off-centre labels could win (``truth_views``):
+
+    python eval/heldout_error_budget.py truth-views OUT --scene bedroom --views 0 30 120
 
 The budget table of docs/benchmarks.md trains, per scene, the baseline and each retrained variant (``RETRAINS``)
 with ``panorecon train`` into OUT/<scene>/<variant>, reads every run on the baseline's held-out views, writes
@@ -124,6 +131,45 @@ def clamp_along_ray(model):
     return _replace(model, quats=quats, log_scales=log_scales)
 
 
+def true_normals(scene) -> np.ndarray:
+    """[H, W, 3] float32 unit normals of the true surface at every ERP pixel of ``scene`` (the cross product of
+    the true points' central differences along longitude and latitude; NaN on the poles' rows, at sky and where
+    a difference crosses a depth step's two sides). Their sign is arbitrary: a flattened Gaussian has no side."""
+    from panorecon.geometry import erp_directions
+
+    d = scene.distance.astype(np.float64)
+    points = erp_directions(*d.shape) * np.where(np.isfinite(d), d, np.nan)[..., None]
+    along_lon = np.roll(points, -1, 1) - np.roll(points, 1, 1)
+    along_lat = np.full_like(points, np.nan)
+    along_lat[1:-1] = points[2:] - points[:-2]
+    n = np.cross(along_lon, along_lat)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+
+
+def flatten_onto_surface(model, scene, scale: float, thickness: float = 0.05, min_cos: float = 0.2):
+    """Each Gaussian sheared along its ray from the centre onto the true surface's tangent plane there (2DGS's
+    and PGSR's flat Gaussians, with the truth's normal n): Σ' = A Σ Aᵀ + (thickness² λ_max) n nᵀ with
+    A = I - u nᵀ / (n·u), u its ray. A moves each point of the Gaussian along u only, so the centre sees it as
+    before (to first order: the projection's Jacobian J has J u = 0, so J A = J); other positions see a disc on
+    the surface. Gaussians whose ray meets the surface at a grazing angle (|n·u| < ``min_cos``), sky or no normal
+    stay as they are."""
+    from panorecon.geometry import sample_erp
+
+    u, _ = _rays(model)
+    n = sample_erp(true_normals(scene), u, "nearest").astype(np.float64)
+    cos = np.einsum("ni,ni->n", np.nan_to_num(n), u)
+    flat = np.isfinite(n).all(1) & (np.abs(cos) >= min_cos)
+    n, cos = np.where(flat[:, None], n, u), np.where(flat, cos, 1.0)
+    A = np.eye(3) - np.einsum("ni,nj->nij", u, n) / cos[:, None, None]
+    cov = A @ covariances(model) @ np.swapaxes(A, 1, 2)
+    cov += (thickness**2 * np.linalg.eigvalsh(cov)[:, -1])[:, None, None] * np.einsum("ni,nj->nij", n, n)
+    quats, log_scales = from_covariances(cov)
+    quats[~flat] = model.quats.detach().double().numpy()[~flat]
+    log_scales[~flat] = model.log_scales.detach().double().numpy()[~flat]
+    return _replace(model, quats=quats, log_scales=log_scales)
+
+
 def zero_higher_sh(model):
     """The SH bands above degree 0 set to 0 (view-independent colour)."""
     return _replace(model, shN=np.zeros(tuple(model.shN.shape), np.float32))
@@ -151,6 +197,10 @@ SWAPS = {
     "extent along the centre's rays clamped": lambda m, scene, scale: clamp_along_ray(m),
     "depth error halved and extent clamped": lambda m, scene, scale: clamp_along_ray(
         snap_to_surface(m, scene, scale, 0.5)
+    ),
+    "flattened onto the true surface along the centre's rays": flatten_onto_surface,
+    "depth error halved and flattened": lambda m, scene, scale: flatten_onto_surface(
+        snap_to_surface(m, scene, scale, 0.5), scene, scale
     ),
     "SH bands above 0 zeroed": lambda m, scene, scale: zero_higher_sh(m),
     "floaters removed": remove_floaters,
@@ -250,21 +300,49 @@ def scores(model, views, cfg) -> dict:
     return {"psnr": float(np.mean(ps)), **{k: s[k] for k in ("covisible_psnr", "oracle_psnr", "oracle_gap")}}
 
 
-def heldout_views(scene, metrics: dict, n: int | None = None, res: int | None = None) -> list:
+def heldout_views(scene, metrics: dict, n: int | None = None, res: int | None = None, radius=(0.3, 0.7)) -> list:
     """The held-out views of a run (``metrics``: its metrics.json): its count, size, field of view and seed unless
-    ``n`` / ``res`` are given, in the cloud's frame, over the sky environment the run was trained in front of."""
+    ``n`` / ``res`` are given, at ``radius`` (fractions of the free-space radius; the trainer's by default), in
+    the cloud's frame, over the sky environment the run was trained in front of."""
     from panorecon.splat.initial import sky_environment, view_background
     from panorecon.splat.labels import in_cloud_frame, make_heldout_views
 
     c = metrics["config"]
     views = [
         in_cloud_frame(v, metrics["heldout_scale"])
-        for v in make_heldout_views(scene, n or c["heldout"], res or c["res"], c["fov_deg"], c["seed"])
+        for v in make_heldout_views(scene, n or c["heldout"], res or c["res"], c["fov_deg"], c["seed"], radius)
     ]
     env = sky_environment(scene) if c["sky"] == "panorama" else None
     for v in views:
         v.background = view_background(env, v.camera)
     return views
+
+
+def load_run(run: Path, res: int | None = None):
+    """(metrics.json, the TrainConfig its renders are read with at ``res`` (default: the run's), the trained
+    model) of a ``panorecon train`` folder."""
+    from panorecon.splat.ply import load_ply
+    from panorecon.splat.trainer import TrainConfig
+
+    metrics = json.loads((run / "metrics.json").read_text())
+    c = metrics["config"]
+    cfg = TrainConfig(res=res or c["res"], fov_deg=c["fov_deg"], backend="cpu", antialiased=c.get("antialiased", False))
+    return metrics, cfg, load_ply(run / "point_cloud.ply")
+
+
+# fractions of the free-space radius at which ``by_distance`` places held-out cameras (the last: the trainer's)
+DISTANCE_BANDS = ((0.0, 0.0), (0.02, 0.05), (0.1, 0.2), (0.3, 0.7))
+
+
+def by_distance(run: Path, scene, n: int | None = None, res: int | None = None) -> list[dict]:
+    """The held-out scores of a run on views drawn with its seed (same directions) at each of DISTANCE_BANDS from
+    the panorama centre: how the gap grows as the views leave the centre (at 0 the oracle is the panorama itself
+    resampled, so the gap there is the fit to the labels, not the view's position)."""
+    metrics, cfg, model = load_run(run, res)
+    return [
+        {"radius": list(band), **scores(model, heldout_views(scene, metrics, n, res, band), cfg)}
+        for band in DISTANCE_BANDS
+    ]
 
 
 def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> dict:
@@ -274,14 +352,9 @@ def read_run(run: Path, scene, n: int | None = None, res: int | None = None) -> 
     import torch
 
     from panorecon.splat.evaluate import _render
-    from panorecon.splat.ply import load_ply
-    from panorecon.splat.trainer import TrainConfig
 
-    metrics = json.loads((run / "metrics.json").read_text())
-    c = metrics["config"]
+    metrics, cfg, model = load_run(run, res)
     views = heldout_views(scene, metrics, n, res)
-    cfg = TrainConfig(res=res or c["res"], fov_deg=c["fov_deg"], backend="cpu", antialiased=c.get("antialiased", False))
-    model = load_ply(run / "point_cloud.ply")
     rows, kept = [], []  # kept: (view, render) for the class reading
     for v in views:
         with torch.no_grad():
@@ -384,6 +457,93 @@ def table(argv=None) -> dict:
     return out
 
 
+TRUTH_SEED_OFFSET = 1000  # the true training views' seed is the run's plus this: never the held-out views' draw
+
+
+def true_offcentre_views(scene, scale: float):
+    """A stand-in for the trainer's ``offcentre_labels`` (same signature) that returns ``n`` true renders of
+    ``scene`` from positions drawn like the held-out views' (``make_heldout_views`` with the run's seed plus
+    TRUTH_SEED_OFFSET: other positions and directions), every pixel kept, in the cloud's frame (truth / ``scale``):
+    off-centre information that no method working from the one panorama has, to bound what off-centre labels
+    could win."""
+    import dataclasses
+
+    from panorecon.splat.labels import in_cloud_frame, make_heldout_views
+
+    def views(rgb, point_cloud, n, size, fov_deg, radius, seed):
+        true = make_heldout_views(scene, n, size, fov_deg, seed + TRUTH_SEED_OFFSET) if n else []
+        return [
+            dataclasses.replace(
+                in_cloud_frame(v, scale), depth=None, mask=np.ones(v.rgb.shape[:2], bool), covisible=None, oracle=None
+            )
+            for v in true
+        ]
+
+    return views
+
+
+def truth_views(argv=None) -> dict:
+    """``truth-views OUT --scene S --views 0 30 120 ...``: the budget's baseline retrained with N true off-centre
+    views beside its labels (``true_offcentre_views``, given to the trainer in place of ``offcentre_labels``), each
+    read like the baseline (``read_run``); prints a markdown table of the changes against N = 0. An upper bound:
+    what perfect off-centre labels would buy at these settings, and what they cost the centre's labels."""
+    from unittest import mock
+
+    import panorecon.splat.trainer as trainer
+    from panorecon.cli import main as panorecon
+    from panorecon.scenes import load_scene
+
+    ap = argparse.ArgumentParser(description=truth_views.__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--scene", required=True)
+    ap.add_argument("--views", type=int, nargs="+", default=[0, 30, 120])
+    ap.add_argument("--width", type=int, default=512)
+    ap.add_argument("--res", type=int, default=64)
+    ap.add_argument("--labels", type=int, default=240)
+    ap.add_argument("--iters", type=int, default=1500)
+    ap.add_argument("--teacher", default="sim:relative")
+    ap.add_argument("--heldout", type=int, default=24, help="held-out views every run is read on")
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    scene = load_scene(a.scene, a.width)
+    base = ["--width", str(a.width), "--source", "fibonacci", "--teacher", a.teacher, "--res", str(a.res)]
+    base += ["--labels", str(a.labels), "--iters", str(a.iters), "--seed", str(a.seed), "--heldout", str(a.heldout)]
+    base += ["--checkpoint-every", "0", "--history-every", "0", "--backend", "cpu", "--device", "cpu", "--no-progress"]
+    rows, scale = {}, None
+    for n in sorted(set([0, *a.views])):
+        folder = a.out / f"truth_views_{n}"
+        if n and scale is None:  # the cloud's scale against the truth, as the baseline run measured it
+            scale = json.loads((a.out / "truth_views_0" / "metrics.json").read_text())["heldout_scale"]
+        if not (folder / "metrics.json").is_file():  # a finished run is read again, not retrained
+            with mock.patch.object(trainer, "offcentre_labels", true_offcentre_views(scene, scale or 1.0)):
+                argv_n = ["train", a.scene, *base, "--offcentre-labels", str(n), "--out", str(folder), "--overwrite"]
+                if panorecon(argv_n) != 0:
+                    raise SystemExit(f"panorecon train failed for {a.scene} with {n} true views")
+        budget = read_run(folder, scene, a.heldout, a.res)
+        metrics = json.loads((folder / "metrics.json").read_text())
+        rows[n] = {
+            "pseudo_label_psnr": metrics["pseudo-label"]["psnr"],
+            **{k: budget["swaps"]["as trained"][k] for k in ("psnr", "oracle_gap")},
+            "class_gaps": {k: v["gap"] for k, v in budget["classes"].items() if isinstance(v, dict)},
+        }
+    ref = rows[0]
+    lines = ["| true off-centre views | pseudo-label PSNR (Δ) | held-out PSNR (Δ) | gap to oracle (Δ) | class gaps |"]
+    lines.append("|---|---|---|---|---|")
+    for n, r in rows.items():
+        cells = [str(n)]
+        for k in ("pseudo_label_psnr", "psnr", "oracle_gap"):
+            if not isinstance(r[k], float) or not isinstance(ref[k], float):  # 'n/a: <reason>'
+                cells.append(str(r[k]))
+                continue
+            cells.append(f"{r[k]:.2f}" + ("" if n == 0 else f" ({r[k] - ref[k]:+.2f})"))
+        cells.append(", ".join(f"{k} {g:.2f}" for k, g in r["class_gaps"].items() if isinstance(g, float)))
+        lines.append("| " + " | ".join(cells) + " |")
+    print("\n".join(lines))
+    out = {"settings": {k: v for k, v in vars(a).items() if k != "out"}, "rows": rows}
+    (a.out / "truth_views.json").write_text(json.dumps(out, indent=1))
+    return out
+
+
 def markdown(budget: dict) -> str:
     """The budget table: per scene, each swap's and retrained variant's held-out PSNR (all pixels) and gap to the
     oracle on the co-visible pixels, each with its change against the baseline as trained."""
@@ -417,6 +577,8 @@ def main(argv=None) -> dict:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "table":
         return table(argv[1:])
+    if argv and argv[0] == "truth-views":
+        return truth_views(argv[1:])
     from panorecon.scenes import load_scene
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -425,8 +587,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--width", type=int, required=True)
     ap.add_argument("--heldout", type=int, default=None, help="held-out views (default: the run's)")
     ap.add_argument("--heldout-res", type=int, default=None, help="their size in pixels (default: the run's)")
+    ap.add_argument("--by-distance", action="store_true", help="also read the run at DISTANCE_BANDS (by_distance)")
     args = ap.parse_args(argv)
-    out = read_run(args.run, load_scene(args.scene, args.width), args.heldout, args.heldout_res)
+    scene = load_scene(args.scene, args.width)
+    out = read_run(args.run, scene, args.heldout, args.heldout_res)
+    if args.by_distance:
+        out["by_distance"] = by_distance(args.run, scene, args.heldout, args.heldout_res)
     print(json.dumps(out))
     return out
 

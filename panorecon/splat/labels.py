@@ -112,19 +112,25 @@ def reprojection_oracle(
     return covisible, oracle
 
 
-def make_heldout_views(scene, n_views: int, size: int, fov_deg: float = 60.0, seed: int = 0) -> list[LabelView]:
-    """True renders from random positions at 30-70 % of the free-space radius, looking in random directions
-    within 30 degrees of the horizon, with their true z-depth; on a scene with a true distance, their co-visible
-    pixels and reprojection oracle too (``reprojection_oracle``)."""
+def make_heldout_views(
+    scene, n_views: int, size: int, fov_deg: float = 60.0, seed: int = 0, radius: tuple[float, float] = (0.3, 0.7)
+) -> list[LabelView]:
+    """True renders from random positions at ``radius`` (fractions, default 30-70 %) of the free-space radius from
+    the panorama centre, looking in random directions within 30 degrees of the horizon, with their true z-depth;
+    on a scene with a true distance, their co-visible pixels and reprojection oracle too (``reprojection_oracle``).
+    The same seed draws the same directions whatever ``radius`` is."""
     if scene.world is None:
         raise ValueError(f"scene {scene.name!r} has no ground-truth world: held-out views need a synthetic scene")
+    lo, hi = radius
+    if not 0 <= lo <= hi <= 1:
+        raise ValueError(f"make_heldout_views: radius {radius!r}: expected fractions 0 <= lo <= hi <= 1")
     rng = np.random.default_rng(seed)
-    radius = scene.world.free_space_radius()
+    free = scene.world.free_space_radius()
     K = intrinsics_from_fov(size, size, fov_deg)
     views = []
     for _ in range(n_views):
         p = rng.normal(size=3)
-        p *= rng.uniform(0.3, 0.7) * radius / np.linalg.norm(p)
+        p *= rng.uniform(lo, hi) * free / np.linalg.norm(p)
         az, el = rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi / 6, np.pi / 6)
         forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         cam = PinholeCamera(K, viewmat_from_pose(look_at_rotation(forward), p), size, size)

@@ -199,3 +199,87 @@ def test_an_antialiased_run_is_read_as_it_was_trained(tmp_path):
     as_trained = script.main([str(tmp_path), "--scene", "bedroom", "--width", "128"])["swaps"]["as trained"]
     for key in ("psnr", "oracle_gap"):
         assert as_trained[key] == pytest.approx(metrics["held-out"][key], abs=1e-3), key
+
+
+def test_true_normals_of_a_room_are_its_walls_and_floor():
+    """bedroom is built of boxes and quads: the normals of its ERP are axis-aligned almost everywhere (a wrong
+    cross product or a swapped difference leaves them oblique)."""
+    import numpy as np
+
+    n = script.true_normals(load_scene("bedroom", 128))
+    finite = np.isfinite(n).all(-1)
+    assert finite.mean() > 0.8
+    np.testing.assert_allclose(np.linalg.norm(n[finite], axis=-1), 1.0, atol=1e-5)
+    assert (np.abs(n[finite]).max(-1) > 0.99).mean() > 0.85
+
+
+def test_flatten_keeps_what_the_centre_sees_and_lays_each_gaussian_on_the_true_surface():
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from panorecon.geometry import sample_erp
+
+    scene = load_scene("bedroom", 128)
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(200, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    scale = 2.0
+    means = u * script._true_distance(scene, u, scale)[:, None]
+    quats = Rotation.random(200, random_state=4).as_quat()[:, [3, 0, 1, 2]]
+    m = _model(means, rng.uniform(0.005, 0.05, (200, 3)), quats)
+    normals = sample_erp(script.true_normals(scene), u, "nearest").astype(np.float64)
+    cos = np.abs(np.einsum("ni,ni->n", np.nan_to_num(normals), u))
+    flat = np.isfinite(normals).all(1) & (cos >= 0.2)
+    assert 0.5 < flat.mean() < 1  # most lie on a surface seen squarely enough; some are left as they are
+    cov, cov2 = script.covariances(m), script.covariances(script.flatten_onto_surface(m, scene, scale, thickness=0))
+    P = np.eye(3) - np.einsum("ni,nj->nij", u, u)
+    np.testing.assert_allclose(P @ cov2 @ P, P @ cov @ P, atol=1e-7)  # across the centre's ray: as before
+    thin = np.einsum("ni,nij,nj->n", normals[flat], cov2[flat], normals[flat])
+    assert (thin < 1e-6 * np.linalg.eigvalsh(cov2[flat])[:, -1]).all()  # nothing left along the true normal
+    np.testing.assert_allclose(cov2[~flat], cov[~flat], atol=1e-7)
+    thick = script.covariances(script.flatten_onto_surface(m, scene, scale, thickness=0.1))
+    ratio = np.einsum("ni,nij,nj->n", normals[flat], thick[flat], normals[flat]) / np.linalg.eigvalsh(cov2[flat])[:, -1]
+    np.testing.assert_allclose(ratio, 0.01, rtol=1e-3)
+
+
+def test_by_distance_draws_the_same_views_nearer_the_centre(run):
+    out, metrics = run
+    scene = load_scene("bedroom", 128)
+    rows = script.by_distance(out, scene)
+    assert [tuple(r["radius"]) for r in rows] == list(script.DISTANCE_BANDS)
+    trained = script.read_run(out, scene)["swaps"]["as trained"]
+    for key in ("psnr", "oracle_gap"):  # the last band is the trainer's own held-out draw
+        assert rows[-1][key] == pytest.approx(trained[key], abs=1e-9)
+    assert rows[0]["oracle_psnr"] != pytest.approx(rows[-1]["oracle_psnr"])
+
+
+def test_true_offcentre_views_are_true_renders_elsewhere_in_the_cloud_frame():
+    import numpy as np
+
+    from panorecon.splat.labels import make_heldout_views
+
+    scene = load_scene("bedroom", 128)
+    views = script.true_offcentre_views(scene, 2.0)(scene.rgb, None, 3, 16, 60.0, 0.7, 5)
+    truth = make_heldout_views(scene, 3, 16, 60.0, 5 + script.TRUTH_SEED_OFFSET)
+    heldout = make_heldout_views(scene, 3, 16, 60.0, 5)
+    assert script.true_offcentre_views(scene, 2.0)(scene.rgb, None, 0, 16, 60.0, 0.7, 5) == []
+    for v, t, h in zip(views, truth, heldout):
+        np.testing.assert_allclose(v.camera.position, t.camera.position / 2.0, atol=1e-12)
+        assert not np.allclose(t.camera.position, h.camera.position)  # never the held-out views themselves
+        np.testing.assert_array_equal(v.rgb, t.rgb)
+        assert v.mask.all() and v.depth is None and v.oracle is None
+
+
+def test_truth_views_trains_with_the_true_views_in_place_of_the_warped_ones(tmp_path, monkeypatch):
+    import panorecon.splat.trainer as trainer
+
+    def refuse(rgb, point_cloud, n, *args):
+        assert n == 0, "the warped off-centre labels were asked for: the true views did not reach the trainer"
+        return []
+
+    monkeypatch.setattr(trainer, "offcentre_labels", refuse)
+    args = ["--width", "128", "--res", "32", "--labels", "8", "--iters", "6", "--heldout", "2", "--views", "4"]
+    out = script.truth_views([str(tmp_path), "--scene", "bedroom", *args])
+    assert set(out["rows"]) == {0, 4}
+    assert (tmp_path / "truth_views.json").is_file()
+    assert out["rows"][4]["psnr"] != out["rows"][0]["psnr"]  # the four true views changed the training

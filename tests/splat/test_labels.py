@@ -38,6 +38,22 @@ def test_heldout_views_are_off_centre_true_renders(bedroom):
     np.testing.assert_array_equal(a[1].rgb, b[1].rgb)
 
 
+def test_heldout_views_at_a_chosen_distance_keep_their_directions(bedroom):
+    r = bedroom.world.free_space_radius()
+    far = make_heldout_views(bedroom, 3, 16, seed=3)
+    centre = make_heldout_views(bedroom, 3, 16, seed=3, radius=(0.0, 0.0))
+    near = make_heldout_views(bedroom, 3, 16, seed=3, radius=(0.1, 0.2))
+    for f, c, n in zip(far, centre, near):
+        assert np.linalg.norm(c.camera.position) == 0.0
+        assert 0.1 * r - 1e-9 <= np.linalg.norm(n.camera.position) <= 0.2 * r + 1e-9
+        unit = [v.camera.position / np.linalg.norm(v.camera.position) for v in (f, n)]
+        np.testing.assert_allclose(unit[0], unit[1], atol=1e-12)  # same draw, another distance
+        np.testing.assert_allclose(c.camera.viewmat[:3, :3], f.camera.viewmat[:3, :3], atol=1e-12)
+        assert c.covisible.mean() > 0.95  # from the centre the panorama sees every point but at its depth steps
+    with pytest.raises(ValueError, match="radius"):
+        make_heldout_views(bedroom, 1, 16, radius=(0.5, 0.2))
+
+
 def test_errors(real_data, bedroom):
     with pytest.raises(ValueError, match="ground-truth world"):
         make_heldout_views(load_scene("py360-demo", 64), 2, 16)
