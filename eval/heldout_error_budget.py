@@ -95,30 +95,12 @@ def snap_to_surface(model, scene, scale: float, keep: float = 0.0):
     return _replace(model, means=means, log_scales=model.log_scales.detach().double().numpy() + np.log(f)[:, None])
 
 
-def covariances(model) -> np.ndarray:
-    """Σ = R diag(s²) Rᵀ [N, 3, 3] float64 of every Gaussian (R from its wxyz quaternion, s its scales)."""
-    from panorecon.splat.rasterize.projection import quat_to_rotmat
-
-    R = quat_to_rotmat(model.quats.detach().double()).numpy()
-    s = np.exp(model.log_scales.detach().double().numpy())
-    return np.einsum("nij,nj,nkj->nik", R, s**2, R)
-
-
-def from_covariances(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(wxyz quaternions [N, 4], log scales [N, 3]) float64 of covariances [N, 3, 3] (eigen-decomposed; a
-    reflection turned into a rotation by flipping one axis)."""
-    from scipy.spatial.transform import Rotation
-
-    lam, V = np.linalg.eigh(cov)
-    V[np.linalg.det(V) < 0, :, 0] *= -1
-    q = Rotation.from_matrix(V).as_quat()  # xyzw
-    return np.concatenate([q[:, 3:], q[:, :3]], 1), 0.5 * np.log(np.maximum(lam, 1e-30))
-
-
 def clamp_along_ray(model):
     """Each Gaussian's extent along its ray from the centre clamped to its thinnest axis: Σ' = A Σ A with
     A = I + (k - 1) u uᵀ, k = min(1, s_min / sqrt(uᵀ Σ u)). A leaves the part of Σ across the ray as it was, so
     the centre sees the Gaussian as before (to first order); only the depth the centre cannot see shrinks."""
+    from panorecon.splat.model import covariances, from_covariances
+
     u, _ = _rays(model)
     cov = covariances(model)
     radial = np.sqrt(np.einsum("ni,nij,nj->n", u, cov, u))
@@ -131,43 +113,18 @@ def clamp_along_ray(model):
     return _replace(model, quats=quats, log_scales=log_scales)
 
 
-def true_normals(scene) -> np.ndarray:
-    """[H, W, 3] float32 unit normals of the true surface at every ERP pixel of ``scene`` (the cross product of
-    the true points' central differences along longitude and latitude; NaN on the poles' rows, at sky and where
-    a difference crosses a depth step's two sides). Their sign is arbitrary: a flattened Gaussian has no side."""
-    from panorecon.geometry import erp_directions
+def flatten_onto_surface(model, scene, scale: float, thickness: float | None = None):
+    """A copy of ``model`` with every Gaussian sheared along its ray from the centre onto the true surface's
+    tangent plane there (``splat/regularisers.flatten_onto_surface`` with the normals of the scene's true
+    distance, ``geometry.erp_normals``; ``scale`` does not change a normal): the centre sees it as before, other
+    positions see a disc on the true surface."""
+    from panorecon.geometry import erp_normals
+    from panorecon.splat.regularisers import FLAT_THICKNESS
+    from panorecon.splat.regularisers import flatten_onto_surface as flatten
 
-    d = scene.distance.astype(np.float64)
-    points = erp_directions(*d.shape) * np.where(np.isfinite(d), d, np.nan)[..., None]
-    along_lon = np.roll(points, -1, 1) - np.roll(points, 1, 1)
-    along_lat = np.full_like(points, np.nan)
-    along_lat[1:-1] = points[2:] - points[:-2]
-    n = np.cross(along_lon, along_lat)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
-
-
-def flatten_onto_surface(model, scene, scale: float, thickness: float = 0.05, min_cos: float = 0.2):
-    """Each Gaussian sheared along its ray from the centre onto the true surface's tangent plane there (2DGS's
-    and PGSR's flat Gaussians, with the truth's normal n): Σ' = A Σ Aᵀ + (thickness² λ_max) n nᵀ with
-    A = I - u nᵀ / (n·u), u its ray. A moves each point of the Gaussian along u only, so the centre sees it as
-    before (to first order: the projection's Jacobian J has J u = 0, so J A = J); other positions see a disc on
-    the surface. Gaussians whose ray meets the surface at a grazing angle (|n·u| < ``min_cos``), sky or no normal
-    stay as they are."""
-    from panorecon.geometry import sample_erp
-
-    u, _ = _rays(model)
-    n = sample_erp(true_normals(scene), u, "nearest").astype(np.float64)
-    cos = np.einsum("ni,ni->n", np.nan_to_num(n), u)
-    flat = np.isfinite(n).all(1) & (np.abs(cos) >= min_cos)
-    n, cos = np.where(flat[:, None], n, u), np.where(flat, cos, 1.0)
-    A = np.eye(3) - np.einsum("ni,nj->nij", u, n) / cos[:, None, None]
-    cov = A @ covariances(model) @ np.swapaxes(A, 1, 2)
-    cov += (thickness**2 * np.linalg.eigvalsh(cov)[:, -1])[:, None, None] * np.einsum("ni,nj->nij", n, n)
-    quats, log_scales = from_covariances(cov)
-    quats[~flat] = model.quats.detach().double().numpy()[~flat]
-    log_scales[~flat] = model.log_scales.detach().double().numpy()[~flat]
-    return _replace(model, quats=quats, log_scales=log_scales)
+    flat = _replace(model)
+    flatten(flat, erp_normals(scene.distance), FLAT_THICKNESS if thickness is None else thickness)
+    return flat
 
 
 def zero_higher_sh(model):

@@ -91,3 +91,27 @@ def erp_z_to_distance_factor(height: int, width: int) -> np.ndarray:
 def distance_to_points(distance: Array, directions: Array) -> Array:
     """Ray distance [...] (metres) and unit directions [..., 3] -> points [..., 3] (metres)."""
     return distance[..., None] * directions
+
+
+def erp_grid_normals(points: np.ndarray) -> np.ndarray:
+    """[H, W, 3] float32 unit normals of an ERP grid of 3D points [H, W, 3] (one surface point per pixel, NaN
+    where none): the cross product of the points' central differences along longitude (wrapping) and latitude.
+    NaN on the first and last rows and where a neighbour is missing; the sign is arbitrary. float64 inside."""
+    p = np.asarray(points, np.float64)
+    if p.ndim != 3 or p.shape[2] != 3:
+        raise ValueError(f"erp_grid_normals: points of shape {p.shape}: expected [H, W, 3]")
+    along_lon = np.roll(p, -1, 1) - np.roll(p, 1, 1)
+    along_lat = np.full_like(p, np.nan)
+    along_lat[1:-1] = p[2:] - p[:-2]
+    n = np.cross(along_lon, along_lat)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+
+
+def erp_normals(distance: np.ndarray) -> np.ndarray:
+    """[H, W, 3] float32 unit normals of the surface an ERP ray-distance map [H, W] sees from its centre
+    (``erp_grid_normals`` of its back-projected pixels; NaN where the distance is not finite and positive)."""
+    d = np.asarray(distance, np.float64)
+    if d.ndim != 2 or d.shape[1] != 2 * d.shape[0]:
+        raise ValueError(f"erp_normals: distance of shape {d.shape}: expected an ERP map [H, 2H]")
+    return erp_grid_normals(erp_directions(*d.shape) * np.where(np.isfinite(d) & (d > 0), d, np.nan)[..., None])

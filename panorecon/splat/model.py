@@ -131,3 +131,42 @@ def flatten_to_discs(model: GaussianModel, normals: np.ndarray, thickness: float
     with torch.no_grad():
         model.quats[mask] = torch.from_numpy(q / np.linalg.norm(q, axis=1, keepdims=True)).to(model.quats)
         model.log_scales[mask, 2] = model.log_scales[mask, 0] + float(np.log(thickness))
+
+
+def covariances(model: GaussianModel) -> np.ndarray:
+    """Σ = R diag(s²) Rᵀ [N, 3, 3] float64 of every Gaussian (R from its wxyz quaternion, s its scales)."""
+    from .rasterize.projection import quat_to_rotmat
+
+    R = quat_to_rotmat(model.quats.detach().cpu().double()).numpy()
+    s = np.exp(model.log_scales.detach().cpu().double().numpy())
+    return np.einsum("nij,nj,nkj->nik", R, s**2, R)
+
+
+def rotmat_to_wxyz(R: np.ndarray) -> np.ndarray:
+    """Unit wxyz quaternions [N, 4] float64 of rotation matrices [N, 3, 3] (Shepperd's method: each from the
+    largest of its four squared components, so none divides by a small one; w >= 0 where w is that one)."""
+    R = np.asarray(R, np.float64)
+    d0, d1, d2 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    big = np.stack([1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2], 1)
+    k = big.argmax(1)
+    s = 2 * np.sqrt(np.maximum(big[np.arange(len(R)), k], 1e-300))  # 4 x the largest component
+    zy, yz, xz, zx, yx, xy = R[:, 2, 1], R[:, 1, 2], R[:, 0, 2], R[:, 2, 0], R[:, 1, 0], R[:, 0, 1]
+    cands = np.stack(
+        [
+            np.stack([s / 4, (zy - yz) / s, (xz - zx) / s, (yx - xy) / s], 1),
+            np.stack([(zy - yz) / s, s / 4, (xy + yx) / s, (xz + zx) / s], 1),
+            np.stack([(xz - zx) / s, (xy + yx) / s, s / 4, (yz + zy) / s], 1),
+            np.stack([(yx - xy) / s, (xz + zx) / s, (yz + zy) / s, s / 4], 1),
+        ],
+        1,
+    )
+    q = cands[np.arange(len(R)), k]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def from_covariances(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(wxyz quaternions [N, 4], log scales [N, 3]) float64 of covariances [N, 3, 3] (eigen-decomposed; a
+    reflection turned into a rotation by flipping one axis; eigenvalues floored at 1e-30)."""
+    lam, V = np.linalg.eigh(cov)
+    V[np.linalg.det(V) < 0, :, 0] *= -1
+    return rotmat_to_wxyz(V), 0.5 * np.log(np.maximum(lam, 1e-30))

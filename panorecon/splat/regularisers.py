@@ -22,6 +22,13 @@ along its own ray: with D(u) the distance of the nearest point of the given clou
 (``surface_distances``, bins of the label pixel's size) and d = ln(r / D(u)) for a Gaussian at distance r, it is
 the mean over Gaussians of min(d^2, ANCHOR_BAND^2). A Gaussian more than ANCHOR_BAND (in ln distance) from the
 surface, the disocclusion fill behind a depth edge or a point of another layer, is left where it is.
+
+Flattening (TrainConfig.flatten_every): from the centre a Gaussian's shape along its own ray is invisible, so a
+blob and a disc on the surface render alike there and differently from anywhere else. ``flatten_onto_surface``
+shears each Gaussian along its ray onto the plane of the fused surface's normal at its bin (``surface_normals``:
+the given cloud's nearest points per ERP bin, their normals from central differences), which leaves what the
+centre sees (to first order) and lays the Gaussian on the surface for every other view. It is a projection, not a
+loss term: the trainer applies it every ``flatten_every`` steps and after the last.
 """
 
 from __future__ import annotations
@@ -29,11 +36,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..geometry.sphere import direction_to_erp_pixel
+from ..geometry.sphere import direction_to_erp_pixel, erp_grid_normals
 from .rasterize import rasterize
 
 SPREAD_EPS = 1e-12  # S1^2 below this (a pixel nothing covers): no spread
 ANCHOR_BAND = 0.1  # ln distance: within about 10 % of the fused surface a Gaussian is pulled onto it
+FLAT_THICKNESS = 0.05  # a flattened Gaussian's extent along the surface normal, over the RMS of its two axes
+FLAT_MIN_COS = 0.2  # |n·u| below this (the centre sees the surface within ~12 degrees of grazing): not flattened
 
 
 def depth_spread(alpha: torch.Tensor, depth_sum: torch.Tensor, depth_sq_sum: torch.Tensor) -> torch.Tensor:
@@ -129,3 +138,88 @@ def surface_anchor_reference(means: torch.Tensor, xyz: np.ndarray, height: int) 
         d = torch.log(m.double().norm()) - float(np.log(pr[same].min()))
         terms.append(torch.clamp(d * d, max=ANCHOR_BAND**2))
     return torch.stack(terms).mean() if terms else means.new_zeros((), dtype=torch.float64)
+
+
+def surface_normals(xyz: np.ndarray, height: int) -> np.ndarray:
+    """[height, 2 height, 3] float32 normals of the surface the centre sees in the points ``xyz`` [N, 3]: in each
+    ERP bin the nearest point to the centre (as ``surface_distances``), at its own position, and the normals of
+    that grid (``geometry.erp_grid_normals``; exact on a plane); NaN where a bin or a neighbour has no point."""
+    xyz = np.asarray(xyz, np.float64)
+    r = np.linalg.norm(xyz, axis=1)
+    keep = np.flatnonzero(np.isfinite(r) & (r > 0))
+    rows, cols = _erp_bins(xyz[keep], height)
+    bins = rows * 2 * height + cols
+    order = np.lexsort((r[keep], bins))  # by bin, nearest first
+    first = order[np.r_[True, bins[order][1:] != bins[order][:-1]]]
+    grid = np.full((height * 2 * height, 3), np.nan)
+    grid[bins[first]] = xyz[keep][first]
+    return erp_grid_normals(grid.reshape(height, 2 * height, 3))
+
+
+def flatten_onto_surface(model, normals: np.ndarray, thickness: float = FLAT_THICKNESS) -> np.ndarray:
+    """Shear every Gaussian of ``model`` along its ray u from the centre onto the plane of the surface normal n
+    at its ERP bin of ``normals`` [H, 2H, 3] (``surface_normals``, or a true surface's ``erp_normals``), in place:
+    Σ' = A Σ Aᵀ + thickness² (tr(A Σ Aᵀ) / 2) n nᵀ with A = I - u nᵀ / (n·u). A moves points along u only, so
+    the centre's view of the Gaussian is unchanged to first order (the projection's Jacobian J has J u = 0, so
+    J A = J), while any other position sees a disc on the surface (2DGS's and PGSR's flat Gaussians) whose
+    thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite normal, or whose surface
+    the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as they are; means, opacities and colours
+    never change. A Σ Aᵀ lies in the plane (nᵀ A = 0), so its axes come in closed form from the 2 x 2 matrix on
+    a basis of the plane (no 3 x 3 eigensolver). float64 inside. -> [N] bool: the Gaussians flattened."""
+    from .model import covariances, rotmat_to_wxyz
+
+    means = model.means.detach().cpu().double().numpy()
+    r = np.linalg.norm(means, axis=1)
+    u = means / np.maximum(r, 1e-300)[:, None]
+    rows, cols = _erp_bins(u, normals.shape[0])
+    n = normals[rows, cols].astype(np.float64)
+    cos = np.einsum("ni,ni->n", np.nan_to_num(n), u)
+    flat = np.isfinite(n).all(1) & (np.abs(cos) >= FLAT_MIN_COS) & (r > 0)
+    if not flat.any():
+        return flat
+    u, n, cos = u[flat], n[flat], cos[flat]
+    A = np.eye(3) - np.einsum("ni,nj->nij", u, n) / cos[:, None, None]
+    S = A @ covariances(model)[flat] @ np.swapaxes(A, 1, 2)
+    helper = np.eye(3)[np.abs(n).argmin(1)]  # the axis least along n: a basis (t1, t2) of the plane
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(n, t1)
+    m11, m22 = np.einsum("ni,nij,nj->n", t1, S, t1), np.einsum("ni,nij,nj->n", t2, S, t2)
+    m12 = np.einsum("ni,nij,nj->n", t1, S, t2)
+    theta = 0.5 * np.arctan2(2 * m12, m11 - m22)
+    mid, half = (m11 + m22) / 2, np.hypot((m11 - m22) / 2, m12)
+    e1 = np.cos(theta)[:, None] * t1 + np.sin(theta)[:, None] * t2
+    R = np.stack([e1, np.cross(n, e1), n], -1)  # columns: the disc's axes and its normal (det +1)
+    var = np.stack([mid + half, mid - half, thickness**2 * mid], 1)
+    idx = torch.from_numpy(np.flatnonzero(flat)).to(model.quats.device)
+    with torch.no_grad():
+        model.quats[idx] = torch.from_numpy(rotmat_to_wxyz(R)).to(model.quats)
+        model.log_scales[idx] = torch.from_numpy(0.5 * np.log(np.maximum(var, 1e-30))).to(model.log_scales)
+    return flat
+
+
+def flatten_onto_surface_reference(means, quats, log_scales, normals, thickness: float = FLAT_THICKNESS):
+    """``flatten_onto_surface``'s covariances, one Gaussian at a time (slow; the tests' yardstick): each of its
+    axes a_k s_k mapped point by point along the ray onto the plane (x -> x - u (n·x) / (n·u)), Σ' the sum of the
+    mapped axes' outer products plus the thickness term (thickness² x half their trace, along n). means [N, 3],
+    quats [N, 4] wxyz, log_scales [N, 3] and normals [H, 2H, 3] numpy -> ([N, 3, 3] float64 covariances, [N] bool
+    flattened)."""
+    from scipy.spatial.transform import Rotation
+
+    out, flat = [], []
+    for m, q, ls in zip(np.asarray(means, np.float64), np.asarray(quats, np.float64), np.asarray(log_scales)):
+        R = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
+        axes = [R[:, k] * np.exp(float(ls[k])) for k in range(3)]
+        u = m / np.linalg.norm(m)
+        row, col = direction_to_erp_pixel(u[None], normals.shape[0], normals.shape[1])
+        n = normals[int(np.clip(np.rint(row[0]), 0, normals.shape[0] - 1)), int(np.rint(col[0])) % normals.shape[1]]
+        if not np.isfinite(n).all() or abs(n @ u) < FLAT_MIN_COS:
+            out.append(sum(np.outer(a, a) for a in axes))
+            flat.append(False)
+            continue
+        n = n.astype(np.float64)
+        mapped = [a - u * (n @ a) / (n @ u) for a in axes]
+        cov = sum(np.outer(a, a) for a in mapped)
+        out.append(cov + thickness**2 * np.trace(cov) / 2 * np.outer(n, n))
+        flat.append(True)
+    return np.array(out), np.array(flat)

@@ -45,7 +45,15 @@ from .model import PARAM_NAMES, GaussianModel, flatten_to_discs
 from .offcentre import offcentre_labels
 from .ply import save_ply
 from .rasterize import BACKENDS, resolve_backend
-from .regularisers import anchor_height, depth_spread, render_depth_sq, surface_anchor, surface_distances
+from .regularisers import (
+    anchor_height,
+    depth_spread,
+    flatten_onto_surface,
+    render_depth_sq,
+    surface_anchor,
+    surface_distances,
+    surface_normals,
+)
 from .strategy import STRATEGIES, edit_parameters
 
 log = logging.getLogger("panorecon.train")
@@ -153,6 +161,13 @@ class TrainConfig:
         "opacity times sqrt(det S / det(S + 0.3 I)) of its 2D covariance S, so the 0.3 px^2 low-pass keeps what "
         "it covers instead of widening it, and a view that sees the surface smaller than the labels did sees "
         "it area-averaged, not aliased; its PLY is then meant for antialiased renderers",
+    )
+    flatten_every: int = opt(
+        0,
+        "steps between flattenings, and after the last: every Gaussian sheared along its ray from the centre onto "
+        "the plane of the given cloud's surface there, a disc on the surface that the centre sees as before "
+        "(splat/regularisers.py); 0: never",
+        check=C.STEP,
     )
     offcentre_labels: int = opt(
         0,
@@ -420,6 +435,8 @@ def train(
     surface = None  # the given cloud's surface seen from the centre, in label-pixel bins (the anchor's target)
     if cfg.w_anchor:
         surface = torch.from_numpy(surface_distances(given_cloud.xyz, anchor_height(lres, cfg.fov_deg))).to(dev)
+    # the given cloud's surface normals in bins of two label pixels (fewer empty bins than one), for flattening
+    normals = surface_normals(given_cloud.xyz, anchor_height(lres, cfg.fov_deg) // 2) if cfg.flatten_every else None
     # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
     views = labels + offcentre  # the views trained on: teacher depth for the centre's, masks for the others'
     targets = torch.from_numpy(np.stack([v.rgb for v in views])).to(dev)
@@ -518,6 +535,8 @@ def train(
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
+        if cfg.flatten_every and ((it + 1) % cfg.flatten_every == 0 or it + 1 == cfg.iters):
+            flatten_onto_surface(model, normals)
         footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, lres, it + 1)
         sync_now = (
             (cfg.history_every and (it + 1) % cfg.history_every == 0)

@@ -101,3 +101,22 @@ def test_a_distance_read_as_z_is_not_the_same():
     # the distinction matters: a far corner of a cube face differs by up to sqrt(3)
     f = erp_z_to_distance_factor(16, 32)
     assert (f > 1.5).any()
+
+
+def test_erp_normals_of_a_sphere_are_radial_and_of_a_floor_vertical():
+    from panorecon.geometry import erp_normals
+
+    dirs = erp_directions(32, 64)
+    n = erp_normals(np.full((32, 64), 3.0))
+    inner = n[1:-1]
+    np.testing.assert_allclose(np.abs((inner * dirs[1:-1]).sum(-1)), 1.0, atol=1e-5)  # along the ray
+    assert np.isnan(n[0]).all() and np.isnan(n[-1]).all()  # the poles' rows have no latitude neighbour
+    with np.errstate(divide="ignore"):
+        floor = np.where(dirs[..., 2] < -0.1, -1.5 / dirs[..., 2], np.nan)  # the plane z = -1.5 below the centre
+    nf = erp_normals(floor)
+    ok = np.isfinite(nf).all(-1)
+    assert ok.sum() > 0.3 * ok.size
+    np.testing.assert_allclose(np.abs(nf[ok][:, 2]), 1.0, atol=1e-5)
+    assert not np.isfinite(nf[dirs[..., 2] > 0]).any()  # no surface above the horizon: no normal
+    with pytest.raises(ValueError, match="ERP map"):
+        erp_normals(np.ones((8, 8)))

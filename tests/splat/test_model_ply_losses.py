@@ -398,3 +398,17 @@ def test_points_with_a_normal_start_as_discs_on_their_plane():
     assert torch.equal(disc.quats[4:], iso.quats[4:]) and torch.equal(s_disc[4:], s_iso[4:])
     with pytest.raises(ValueError, match="normals"):
         flatten_to_discs(disc, normals[:3], 0.1)
+
+
+def test_rotmat_to_wxyz_is_scipys_up_to_sign_even_at_half_turns():
+    from scipy.spatial.transform import Rotation
+
+    from panorecon.splat.model import rotmat_to_wxyz
+
+    rots = Rotation.random(500, random_state=0)
+    half_turns = Rotation.from_rotvec(np.pi * np.random.default_rng(1).normal(size=(50, 3)).clip(-1, 1))
+    axis_turns = Rotation.from_rotvec(np.pi * np.eye(3))  # w = 0 exactly: the copysign shortcut fails here
+    for r in (rots, half_turns, axis_turns, Rotation.identity(3)):
+        want = r.as_quat()[:, [3, 0, 1, 2]]
+        got = rotmat_to_wxyz(r.as_matrix())
+        np.testing.assert_allclose(np.abs((got * want).sum(1)), 1.0, atol=1e-12)  # q and -q are one rotation

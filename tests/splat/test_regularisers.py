@@ -12,15 +12,20 @@ from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
 from panorecon.splat.model import GaussianModel
 from panorecon.splat.rasterize import project_gaussians, rasterize
 from panorecon.splat.rasterize.torch_backend import ALPHA_MAX, ALPHA_MIN
+from panorecon.splat.model import covariances
 from panorecon.splat.regularisers import (
     ANCHOR_BAND,
+    FLAT_MIN_COS,
     anchor_height,
     depth_spread,
     depth_spread_reference,
+    flatten_onto_surface,
+    flatten_onto_surface_reference,
     render_depth_sq,
     surface_anchor,
     surface_anchor_reference,
     surface_distances,
+    surface_normals,
 )
 
 W, H = 10, 8
@@ -201,3 +206,83 @@ def test_surface_anchor_without_a_surface_bin_is_zero_and_finite():
     loss = surface_anchor(means, surface)
     loss.backward()
     assert loss.item() == 0.0 and torch.isfinite(means.grad).all()
+
+
+def _box(scale: float, n: int = 200_000) -> np.ndarray:
+    """[n, 3] points on the six faces of a box around the centre, [-2, 2] x [-3, 3] x [-1.5, 2.5] times scale."""
+    g = np.random.default_rng(7)
+    lo, hi = np.array([-2.0, -3.0, -1.5]), np.array([2.0, 3.0, 2.5])
+    pts = g.uniform(lo, hi, size=(n, 3))
+    axis, side = g.integers(0, 3, n), g.integers(0, 2, n)
+    pts[np.arange(n), axis] = np.where(side == 1, hi[axis], lo[axis])
+    return pts * scale
+
+
+def _gaussians_on(pts: np.ndarray, k: int, extreme: bool = False) -> GaussianModel:
+    """k random Gaussians at points of ``pts`` (random rotations; scales 1-5 % of their distance, or with
+    ``extreme`` one axis a millionth of that: near-singular)."""
+    from scipy.spatial.transform import Rotation
+
+    g = np.random.default_rng(8)
+    means = pts[g.choice(len(pts), k, replace=False)]
+    r = np.linalg.norm(means, axis=1, keepdims=True)
+    scales = r * g.uniform(0.01, 0.05, size=(k, 3))
+    if extreme:
+        scales[:, 0] *= 1e-6
+    quats = Rotation.random(k, random_state=9).as_quat()[:, [3, 0, 1, 2]]
+    return GaussianModel(
+        torch.tensor(means, dtype=torch.float32),
+        torch.tensor(quats, dtype=torch.float32),
+        torch.tensor(np.log(scales), dtype=torch.float32),
+        torch.zeros(k),
+        torch.rand(k, 1, 3),
+        torch.zeros(k, 15, 3),
+    )
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+@pytest.mark.parametrize("extreme", [False, True])
+def test_flatten_is_the_per_axis_reference_and_the_centre_sees_it_as_before(scale, extreme):
+    pts = _box(scale)
+    normals = surface_normals(pts, 24)
+    normals[:, :6] = np.nan  # a sector without a surface: its Gaussians stay as they are
+    model = _gaussians_on(pts, 300, extreme)
+    before = covariances(model)
+    ref, ref_flat = flatten_onto_surface_reference(
+        *(t.detach().numpy() for t in (model.means, model.quats, model.log_scales)), normals
+    )
+    means, sh0 = model.means.detach().clone(), model.sh0.detach().clone()
+    flat = flatten_onto_surface(model, normals)
+    after = covariances(model)
+    np.testing.assert_array_equal(flat, ref_flat)
+    assert 0.6 < flat.mean() < 0.95
+    tol = 1e-4 * np.abs(ref).max(axis=(1, 2))[:, None, None]  # the float32 parameters' round trip
+    assert (np.abs(after - ref) <= tol).all()
+    np.testing.assert_allclose(after[~flat], before[~flat], rtol=1e-5, atol=0)
+    m = model.means.detach().double().numpy()
+    u = m / np.linalg.norm(m, axis=1, keepdims=True)
+    P = np.eye(3) - np.einsum("ni,nj->nij", u, u)  # across the centre's ray: what the centre sees
+    seen_before, seen_after = P @ before @ P, P @ after @ P
+    big = np.abs(seen_before).max(axis=(1, 2))[:, None, None]
+    assert (np.abs(seen_after - seen_before)[flat] <= 0.01 * big[flat]).all()  # the thickness term's share only
+    torch.testing.assert_close(model.means, means, rtol=0, atol=0)
+    torch.testing.assert_close(model.sh0, sh0, rtol=0, atol=0)
+    assert torch.isfinite(model.quats).all() and torch.isfinite(model.log_scales).all()
+
+
+def test_a_flattened_gaussian_lies_on_its_wall():
+    """A blob on the wall x = 2 of the box, seen from the centre along a ray 30 degrees off the wall's normal: after
+    flattening its covariance along the wall's normal (x) is the thickness term only, and it spans the wall."""
+    pts = _box(1.0)
+    u = np.array([np.cos(np.radians(30)), np.sin(np.radians(30)), 0.0])
+    model = _gaussians_on(pts, 1)
+    with torch.no_grad():
+        model.means[:] = torch.tensor(u * 2 / u[0], dtype=torch.float32)
+        model.quats[:] = torch.tensor([1.0, 0, 0, 0])
+        model.log_scales[:] = float(np.log(0.05))
+    (flat,) = flatten_onto_surface(model, surface_normals(pts, 48), thickness=0.05)
+    cov = covariances(model)[0]
+    assert flat and abs(u[0]) > FLAT_MIN_COS
+    lam = np.linalg.eigvalsh(cov)
+    assert cov[0, 0] == pytest.approx(0.05**2 * (lam[1] + lam[2]) / 2, rel=1e-3)  # along x: the thickness only
+    assert lam[-1] > 0.05**2  # the blob's depth along the ray now lies along the wall
