@@ -156,6 +156,13 @@ def surface_normals(xyz: np.ndarray, height: int) -> np.ndarray:
     return erp_grid_normals(grid.reshape(height, 2 * height, 3))
 
 
+def flatten_height(points: int, res: int, fov_deg: float) -> int:
+    """ERP height of the normals that flattening reads from a cloud of ``points`` points for labels of ``res``
+    pixels over ``fov_deg``: bins of two label pixels (``anchor_height`` / 2), coarser where the cloud has fewer
+    than 8 points per bin (an empty bin leaves its neighbours without a normal)."""
+    return max(2, min(anchor_height(res, fov_deg) // 2, int(np.sqrt(points / 16))))
+
+
 def flatten_onto_surface(model, normals: np.ndarray, thickness: float = FLAT_THICKNESS) -> np.ndarray:
     """Shear every Gaussian of ``model`` along its ray u from the centre onto the plane of the surface normal n
     at its ERP bin of ``normals`` [H, 2H, 3] (``surface_normals``, or a true surface's ``erp_normals``), in place:

@@ -48,6 +48,7 @@ from .rasterize import BACKENDS, resolve_backend
 from .regularisers import (
     anchor_height,
     depth_spread,
+    flatten_height,
     flatten_onto_surface,
     render_depth_sq,
     surface_anchor,
@@ -435,8 +436,9 @@ def train(
     surface = None  # the given cloud's surface seen from the centre, in label-pixel bins (the anchor's target)
     if cfg.w_anchor:
         surface = torch.from_numpy(surface_distances(given_cloud.xyz, anchor_height(lres, cfg.fov_deg))).to(dev)
-    # the given cloud's surface normals in bins of two label pixels (fewer empty bins than one), for flattening
-    normals = surface_normals(given_cloud.xyz, anchor_height(lres, cfg.fov_deg) // 2) if cfg.flatten_every else None
+    normals = None  # the given cloud's surface normals, for flattening (flatten_height: bins the cloud fills)
+    if cfg.flatten_every:
+        normals = surface_normals(given_cloud.xyz, flatten_height(len(given_cloud.xyz), lres, cfg.fov_deg))
     # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
     views = labels + offcentre  # the views trained on: teacher depth for the centre's, masks for the others'
     targets = torch.from_numpy(np.stack([v.rgb for v in views])).to(dev)

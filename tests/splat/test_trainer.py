@@ -651,3 +651,37 @@ def test_a_scene_too_small_or_too_large_for_float32_is_refused_naming_its_median
     with pytest.raises(PanoreconInputError, match=r"median distance .* m is outside the 0.0001 to 1e\+07 m"):
         train(scene, far, cfg(), tmp_path / "x", depth_fn, progress=False)
     assert not (tmp_path / "x").exists()
+
+
+def test_flatten_every_lays_the_saved_gaussians_on_the_clouds_surface(setup, tmp_path, monkeypatch):
+    """TrainConfig.flatten_every: the trainer flattens every k steps and after the last, so the saved Gaussians
+    are discs on the given cloud's surface (the normal's variance is the thickness term's); never with 0."""
+    from panorecon.splat.model import covariances
+    from panorecon.splat.regularisers import FLAT_THICKNESS, _erp_bins, flatten_height, surface_normals
+
+    scene, pc, depth_fn = setup
+    steps = []
+    real = trainer_mod.flatten_onto_surface
+
+    def counted(model, normals):
+        steps.append(len(steps))
+        return real(model, normals)
+
+    monkeypatch.setattr(trainer_mod, "flatten_onto_surface", counted)
+    c = cfg(iters=25, res=16, labels=12, heldout=0, checkpoint_every=0, history_every=0, flatten_every=10)
+    train(scene, pc, c, tmp_path / "f", depth_fn, progress=False)
+    assert len(steps) == 3  # after steps 10, 20 and the last, 25
+    model = load_ply(tmp_path / "f" / "point_cloud.ply")
+    normals = surface_normals(pc.xyz, flatten_height(len(pc.xyz), c.res, c.fov_deg))
+    means = model.means.detach().double().numpy()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    n = normals[_erp_bins(u, normals.shape[0])].astype(np.float64)
+    flat = np.isfinite(n).all(1) & (np.abs(np.einsum("ni,ni->n", np.nan_to_num(n), u)) >= 0.2)
+    assert flat.mean() > 0.5
+    cov = covariances(model)[flat]
+    along_n = np.einsum("ni,nij,nj->n", n[flat], cov, n[flat])
+    in_plane = (np.trace(cov, axis1=1, axis2=2) - along_n) / 2
+    np.testing.assert_allclose(along_n / in_plane, FLAT_THICKNESS**2, rtol=1e-2)
+    steps.clear()
+    train(scene, pc, dataclasses.replace(c, flatten_every=0), tmp_path / "g", depth_fn, progress=False)
+    assert steps == []
