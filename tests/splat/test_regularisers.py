@@ -9,10 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
-from panorecon.splat.model import GaussianModel
+from panorecon.splat.model import GaussianModel, covariances
 from panorecon.splat.rasterize import project_gaussians, rasterize
 from panorecon.splat.rasterize.torch_backend import ALPHA_MAX, ALPHA_MIN
-from panorecon.splat.model import covariances
 from panorecon.splat.regularisers import (
     ANCHOR_BAND,
     FLAT_MIN_COS,
