@@ -164,7 +164,7 @@ class TrainConfig:
         "it area-averaged, not aliased; its PLY is then meant for antialiased renderers",
     )
     flatten_every: int = opt(
-        0,
+        100,
         "steps between flattenings, and after the last: every Gaussian sheared along its ray from the centre onto "
         "the plane of the given cloud's surface there, a disc on the surface that the centre sees as before "
         "(splat/regularisers.py); 0: never",
