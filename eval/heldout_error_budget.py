@@ -380,13 +380,10 @@ RETRAINS = {
 }
 
 
-def table(argv=None) -> dict:
-    from panorecon.cli import main as panorecon
-    from panorecon.scenes import load_scene
-
-    ap = argparse.ArgumentParser(description="the gap budget table (module docstring)")
+def _training_parser(description: str) -> argparse.ArgumentParser:
+    """The options every retraining command shares: its output folder and the budget's training settings."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("out", type=Path)
-    ap.add_argument("--scenes", nargs="+", required=True)
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--labels", type=int, default=240)
@@ -394,10 +391,26 @@ def table(argv=None) -> dict:
     ap.add_argument("--teacher", default="sim:relative")
     ap.add_argument("--heldout", type=int, default=24, help="held-out views every run is read on")
     ap.add_argument("--seed", type=int, default=0)
-    a = ap.parse_args(argv)
+    ap.add_argument("--flatten-every", type=int, default=None, help="every run's flatten_every (default: trainer's)")
+    return ap
+
+
+def _train_args(a) -> list[str]:
+    """``panorecon train`` options of the settings ``a`` (``_training_parser``), fibonacci on the CPU."""
     base = ["--width", str(a.width), "--source", "fibonacci", "--teacher", a.teacher, "--res", str(a.res)]
     base += ["--labels", str(a.labels), "--iters", str(a.iters), "--seed", str(a.seed), "--heldout", str(a.heldout)]
     base += ["--checkpoint-every", "0", "--history-every", "0", "--backend", "cpu", "--device", "cpu", "--no-progress"]
+    return base + ([] if a.flatten_every is None else ["--flatten-every", str(a.flatten_every)])
+
+
+def table(argv=None) -> dict:
+    from panorecon.cli import main as panorecon
+    from panorecon.scenes import load_scene
+
+    ap = _training_parser("the gap budget table (module docstring)")
+    ap.add_argument("--scenes", nargs="+", required=True)
+    a = ap.parse_args(argv)
+    base = _train_args(a)
     out = {"settings": {k: v for k, v in vars(a).items() if k != "out"}, "scenes": {}}
     for name in a.scenes:
         scene = load_scene(name, a.width)
@@ -450,22 +463,12 @@ def truth_views(argv=None) -> dict:
     from panorecon.cli import main as panorecon
     from panorecon.scenes import load_scene
 
-    ap = argparse.ArgumentParser(description=truth_views.__doc__.splitlines()[0])
-    ap.add_argument("out", type=Path)
+    ap = _training_parser(truth_views.__doc__.splitlines()[0])
     ap.add_argument("--scene", required=True)
     ap.add_argument("--views", type=int, nargs="+", default=[0, 30, 120])
-    ap.add_argument("--width", type=int, default=512)
-    ap.add_argument("--res", type=int, default=64)
-    ap.add_argument("--labels", type=int, default=240)
-    ap.add_argument("--iters", type=int, default=1500)
-    ap.add_argument("--teacher", default="sim:relative")
-    ap.add_argument("--heldout", type=int, default=24, help="held-out views every run is read on")
-    ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     scene = load_scene(a.scene, a.width)
-    base = ["--width", str(a.width), "--source", "fibonacci", "--teacher", a.teacher, "--res", str(a.res)]
-    base += ["--labels", str(a.labels), "--iters", str(a.iters), "--seed", str(a.seed), "--heldout", str(a.heldout)]
-    base += ["--checkpoint-every", "0", "--history-every", "0", "--backend", "cpu", "--device", "cpu", "--no-progress"]
+    base = _train_args(a)
     rows, scale = {}, None
     for n in sorted(set([0, *a.views])):
         folder = a.out / f"truth_views_{n}"

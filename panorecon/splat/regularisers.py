@@ -169,10 +169,11 @@ def flatten_onto_surface(model, normals: np.ndarray, thickness: float = FLAT_THI
     Σ' = A Σ Aᵀ + thickness² (tr(A Σ Aᵀ) / 2) n nᵀ with A = I - u nᵀ / (n·u). A moves points along u only, so
     the centre's view of the Gaussian is unchanged to first order (the projection's Jacobian J has J u = 0, so
     J A = J), while any other position sees a disc on the surface (2DGS's and PGSR's flat Gaussians) whose
-    thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite normal, or whose surface
-    the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as they are; means, opacities and colours
-    never change. A Σ Aᵀ lies in the plane (nᵀ A = 0), so its axes come in closed form from the 2 x 2 matrix on
-    a basis of the plane (no 3 x 3 eigensolver). float64 inside. -> [N] bool: the Gaussians flattened."""
+    thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite normal or covariance, or
+    whose surface the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as they are; means,
+    opacities and colours never change. A Σ Aᵀ lies in the plane (nᵀ A = 0), so its axes come in closed form from
+    the 2 x 2 matrix on a basis of the plane (no 3 x 3 eigensolver). float64 numpy inside: on a GPU the parameters
+    make one round trip to the host. -> [N] bool: the Gaussians flattened."""
     from .model import covariances, rotmat_to_wxyz
 
     means = model.means.detach().cpu().double().numpy()
@@ -181,12 +182,13 @@ def flatten_onto_surface(model, normals: np.ndarray, thickness: float = FLAT_THI
     rows, cols = _erp_bins(u, normals.shape[0])
     n = normals[rows, cols].astype(np.float64)
     cos = np.einsum("ni,ni->n", np.nan_to_num(n), u)
-    flat = np.isfinite(n).all(1) & (np.abs(cos) >= FLAT_MIN_COS) & (r > 0)
+    cov = covariances(model)
+    flat = np.isfinite(n).all(1) & (np.abs(cos) >= FLAT_MIN_COS) & (r > 0) & np.isfinite(cov).all((1, 2))
     if not flat.any():
         return flat
     u, n, cos = u[flat], n[flat], cos[flat]
     A = np.eye(3) - np.einsum("ni,nj->nij", u, n) / cos[:, None, None]
-    S = A @ covariances(model)[flat] @ np.swapaxes(A, 1, 2)
+    S = A @ cov[flat] @ np.swapaxes(A, 1, 2)
     helper = np.eye(3)[np.abs(n).argmin(1)]  # the axis least along n: a basis (t1, t2) of the plane
     t1 = np.cross(n, helper)
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)

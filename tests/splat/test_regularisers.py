@@ -285,3 +285,16 @@ def test_a_flattened_gaussian_lies_on_its_wall():
     lam = np.linalg.eigvalsh(cov)
     assert cov[0, 0] == pytest.approx(0.05**2 * (lam[1] + lam[2]) / 2, rel=1e-3)  # along x: the thickness only
     assert lam[-1] > 0.05**2  # the blob's depth along the ray now lies along the wall
+
+
+def test_flatten_leaves_a_gaussian_without_a_finite_covariance_as_it_is():
+    pts = _box(1.0)
+    model = _gaussians_on(pts, 4)
+    with torch.no_grad():
+        model.log_scales[1, 0] = float("inf")
+    before = model.log_scales.detach().clone(), model.quats.detach().clone()
+    flat = flatten_onto_surface(model, surface_normals(pts, 24))
+    assert not flat[1] and flat[[0, 2, 3]].all()
+    torch.testing.assert_close(model.log_scales[1], before[0][1], rtol=0, atol=0)
+    torch.testing.assert_close(model.quats[1], before[1][1], rtol=0, atol=0)
+    assert torch.isfinite(model.log_scales[[0, 2, 3]]).all() and torch.isfinite(model.quats).all()
