@@ -28,7 +28,8 @@ blob and a disc on the surface render alike there and differently from anywhere 
 shears each Gaussian along its ray onto the plane of the fused surface's normal at its bin (``surface_normals``:
 the given cloud's nearest points per ERP bin, their normals from central differences), which leaves what the
 centre sees (to first order) and lays the Gaussian on the surface for every other view. It is a projection, not a
-loss term: the trainer applies it every ``flatten_every`` steps and after the last.
+loss term: the trainer applies it every ``flatten_every`` steps and after the last, unless the cloud has no surface
+to flatten onto (``normal_coherence`` below FLAT_MIN_COHERENCE: random points).
 """
 
 from __future__ import annotations
@@ -43,6 +44,9 @@ SPREAD_EPS = 1e-12  # S1^2 below this (a pixel nothing covers): no spread
 ANCHOR_BAND = 0.1  # ln distance: within about 10 % of the fused surface a Gaussian is pulled onto it
 FLAT_THICKNESS = 0.05  # a flattened Gaussian's extent along the surface normal, over the RMS of its two axes
 FLAT_MIN_COS = 0.2  # |n·u| below this (the centre sees the surface within ~12 degrees of grazing): not flattened
+# a cloud whose neighbouring bins' normals agree (within ~25 degrees) less often than this has no surface to flatten
+# onto (random points: 0.24-0.28; fused clouds of the suites' scenes: 0.52-0.91)
+FLAT_MIN_COHERENCE = 0.4
 
 
 def depth_spread(alpha: torch.Tensor, depth_sum: torch.Tensor, depth_sq_sum: torch.Tensor) -> torch.Tensor:
@@ -154,6 +158,20 @@ def surface_normals(xyz: np.ndarray, height: int) -> np.ndarray:
     grid = np.full((height * 2 * height, 3), np.nan)
     grid[bins[first]] = xyz[keep][first]
     return erp_grid_normals(grid.reshape(height, 2 * height, 3))
+
+
+def normal_coherence(normals: np.ndarray) -> float:
+    """Share of the pairs of neighbouring ERP bins (along longitude, wrapping, and latitude) with finite normals in
+    ``normals`` [H, W, 3] whose normals agree within ~25 degrees (|n·m| >= 0.9): near 1 on a surface of planes and
+    smooth patches, about 0.25 on points with no surface (random points); 0 without such a pair."""
+    n = np.asarray(normals, np.float64)
+    pairs = [(n, np.roll(n, -1, 1)), (n[:-1], n[1:])]
+    agree = []
+    for a, b in pairs:
+        ok = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
+        agree.append(np.abs(np.einsum("...i,...i->...", a[ok], b[ok])) >= 0.9)
+    agree = np.concatenate(agree)
+    return float(agree.mean()) if agree.size else 0.0
 
 
 def flatten_height(points: int, res: int, fov_deg: float) -> int:

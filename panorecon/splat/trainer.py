@@ -46,10 +46,12 @@ from .offcentre import offcentre_labels
 from .ply import save_ply
 from .rasterize import BACKENDS, resolve_backend
 from .regularisers import (
+    FLAT_MIN_COHERENCE,
     anchor_height,
     depth_spread,
     flatten_height,
     flatten_onto_surface,
+    normal_coherence,
     render_depth_sq,
     surface_anchor,
     surface_distances,
@@ -276,18 +278,28 @@ METRICS_MEANING = {
     "skipped": "stages this run left out because the scene or the settings do not need them: stage -> why. sky: "
     "no sky environment behind the Gaussians; disocclusion_fill: no points behind depth edges; depth_loss: no "
     "Pearson depth term; held-out: no held-out views; depth_metrics: no depth or point metrics against a truth "
-    "(the points stage's report reads n/a)",
+    "(the points stage's report reads n/a); flatten: no flattening onto the starting cloud's surface",
     "initial_thinning": "the initial cloud after thinning to the label resolution (splat/initial.thin_by_detail): "
     "points kept, and per level (0: the label-pixel spacing; l: sites 2^l times further apart, kept where colour "
     "and geometry are smooth within init_detail and init_detail_depth)",
 }
 
 
-def skipped_stages(scene, cfg: TrainConfig, env, fill_points: int, heldout: list, has_teacher: bool) -> dict:
+def skipped_stages(
+    scene, cfg: TrainConfig, env, fill_points: int, heldout: list, has_teacher: bool, coherence: float | None = None
+) -> dict:
     """{stage: why} for each stage ``train`` left out (``METRICS_MEANING['skipped']``): ``env`` the sky environment
     (None: none), ``fill_points`` the disocclusion fill's size, ``heldout`` the held-out views, ``has_teacher``
-    whether the labels carry teacher depth."""
+    whether the labels carry teacher depth, ``coherence`` the starting cloud's ``normal_coherence`` (None: not
+    computed, flattening off)."""
     skipped = {}
+    if not cfg.flatten_every:
+        skipped["flatten"] = "flatten_every = 0"
+    elif coherence is not None and coherence < FLAT_MIN_COHERENCE:
+        skipped["flatten"] = (
+            f"the starting cloud has no surface to flatten onto: {coherence:.0%} of its neighbouring normals agree "
+            f"(< {FLAT_MIN_COHERENCE:.0%})"
+        )
     if cfg.sky == "none":
         skipped["sky"] = "sky = none"
     elif env is None:
@@ -436,9 +448,13 @@ def train(
     surface = None  # the given cloud's surface seen from the centre, in label-pixel bins (the anchor's target)
     if cfg.w_anchor:
         surface = torch.from_numpy(surface_distances(given_cloud.xyz, anchor_height(lres, cfg.fov_deg))).to(dev)
-    normals = None  # the given cloud's surface normals, for flattening (flatten_height: bins the cloud fills)
+    normals, coherence = None, None  # the given cloud's surface normals (flatten_height: bins the cloud fills)
     if cfg.flatten_every:
         normals = surface_normals(given_cloud.xyz, flatten_height(len(given_cloud.xyz), lres, cfg.fov_deg))
+        coherence = normal_coherence(normals)
+        if coherence < FLAT_MIN_COHERENCE:
+            log.info("flattening skipped: %.0f %% of the cloud's neighbouring normals agree", 100 * coherence)
+            normals = None
     # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
     views = labels + offcentre  # the views trained on: teacher depth for the centre's, masks for the others'
     targets = torch.from_numpy(np.stack([v.rgb for v in views])).to(dev)
@@ -537,7 +553,7 @@ def train(
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
-        if cfg.flatten_every and ((it + 1) % cfg.flatten_every == 0 or it + 1 == cfg.iters):
+        if normals is not None and ((it + 1) % cfg.flatten_every == 0 or it + 1 == cfg.iters):
             flatten_onto_surface(model, normals)
         footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, lres, it + 1)
         sync_now = (
@@ -642,7 +658,7 @@ def train(
         heldout_plateau=heldout_plateau(history, heldout_na),
         heldout_scale=heldout_scale,
         initial_thinning=thinning,
-        skipped=skipped_stages(scene, cfg, env, fill_points, heldout, labels[0].depth is not None),
+        skipped=skipped_stages(scene, cfg, env, fill_points, heldout, labels[0].depth is not None, coherence),
         meaning=METRICS_MEANING,
         config=dataclasses.asdict(cfg),
     )

@@ -20,6 +20,7 @@ from panorecon.splat.regularisers import (
     depth_spread_reference,
     flatten_onto_surface,
     flatten_onto_surface_reference,
+    normal_coherence,
     render_depth_sq,
     surface_anchor,
     surface_anchor_reference,
@@ -298,3 +299,12 @@ def test_flatten_leaves_a_gaussian_without_a_finite_covariance_as_it_is():
     torch.testing.assert_close(model.log_scales[1], before[0][1], rtol=0, atol=0)
     torch.testing.assert_close(model.quats[1], before[1][1], rtol=0, atol=0)
     assert torch.isfinite(model.log_scales[[0, 2, 3]]).all() and torch.isfinite(model.quats).all()
+
+
+def test_normal_coherence_tells_a_surface_from_random_points():
+    g = np.random.default_rng(3)
+    box = surface_normals(_box(1.0), 24)
+    scattered = surface_normals(g.uniform(-3, 3, size=(200_000, 3)), 24)
+    assert normal_coherence(box) > 0.8  # the box's faces; its edges disagree
+    assert normal_coherence(scattered) < 0.35
+    assert normal_coherence(np.full((4, 8, 3), np.nan)) == 0.0

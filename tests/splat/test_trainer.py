@@ -685,3 +685,23 @@ def test_flatten_every_lays_the_saved_gaussians_on_the_clouds_surface(setup, tmp
     steps.clear()
     train(scene, pc, dataclasses.replace(c, flatten_every=0), tmp_path / "g", depth_fn, progress=False)
     assert steps == []
+
+
+def test_a_cloud_without_a_surface_is_not_flattened_and_the_run_says_why(setup, tmp_path, monkeypatch):
+    """Random points have no surface whose normals agree (normal_coherence < FLAT_MIN_COHERENCE): the trainer does
+    not flatten them and metrics.json's skipped names the reason; with flatten_every = 0 it names that."""
+    from panorecon.geometry import PointCloud
+
+    scene, pc, depth_fn = setup
+    g = np.random.default_rng(0)
+    xyz = g.normal(size=(4000, 3)) * 2.0
+    scattered = PointCloud(xyz.astype(np.float32), np.full((4000, 3), 128, np.uint8), None, None)
+    calls = []
+    monkeypatch.setattr(trainer_mod, "flatten_onto_surface", lambda model, normals: calls.append(1))
+    c = cfg(iters=20, res=16, labels=12, heldout=0, checkpoint_every=0, history_every=0, flatten_every=10)
+    metrics = train(scene, scattered, c, tmp_path / "r", depth_fn, progress=False)
+    assert calls == [] and "no surface to flatten onto" in metrics["skipped"]["flatten"]
+    metrics = train(scene, pc, c, tmp_path / "s", depth_fn, progress=False)
+    assert calls == [1, 1] and "flatten" not in metrics["skipped"]
+    off = train(scene, pc, dataclasses.replace(c, flatten_every=0), tmp_path / "t", depth_fn, progress=False)
+    assert off["skipped"]["flatten"] == "flatten_every = 0"
