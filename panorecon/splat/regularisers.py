@@ -45,7 +45,7 @@ ANCHOR_BAND = 0.1  # ln distance: within about 10 % of the fused surface a Gauss
 FLAT_THICKNESS = 0.05  # a flattened Gaussian's extent along the surface normal, over the RMS of its two axes
 FLAT_MIN_COS = 0.2  # |n·u| below this (the centre sees the surface within ~12 degrees of grazing): not flattened
 # a cloud whose neighbouring bins' normals agree (within ~25 degrees) less often than this has no surface to flatten
-# onto (random points: 0.24-0.28; fused clouds of the suites' scenes: 0.52-0.91)
+# onto (random points agree about a quarter of the time: tests/splat/test_regularisers.py)
 FLAT_MIN_COHERENCE = 0.4
 
 
