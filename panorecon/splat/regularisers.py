@@ -98,18 +98,27 @@ def _erp_bins(directions, height: int):
     return np.clip(np.rint(rows).astype(np.int64), 0, height - 1), np.rint(cols).astype(np.int64) % (2 * height)
 
 
+def _nearest_in_bins(xyz: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The surface the centre sees in the points ``xyz`` [N, 3] on a height x 2 height ERP grid: (flat indices of
+    the bins that hold a point, [B] int64; the nearest such point to the centre in each, [B, 3] float64)."""
+    xyz = np.asarray(xyz, np.float64)
+    r = np.linalg.norm(xyz, axis=1)
+    keep = np.flatnonzero(np.isfinite(r) & (r > 0))
+    rows, cols = _erp_bins(xyz[keep], height)
+    bins = rows * 2 * height + cols
+    order = np.lexsort((r[keep], bins))  # by bin, nearest first
+    first = order[np.r_[True, bins[order][1:] != bins[order][:-1]]] if len(order) else order
+    return bins[first], xyz[keep][first]
+
+
 def surface_distances(xyz: np.ndarray, height: int) -> np.ndarray:
     """[height, 2 height] float32: in each ERP bin the distance (the cloud's units) of the nearest of the points
     ``xyz`` [N, 3] from the centre, the surface the centre sees; NaN where no point falls. ``height``: 180 / the
     label pixel's size in degrees (``anchor_height``)."""
-    xyz = np.asarray(xyz, np.float64)
-    r = np.linalg.norm(xyz, axis=1)
-    keep = np.isfinite(r) & (r > 0)
-    rows, cols = _erp_bins(xyz[keep], height)
-    grid = np.full((height, 2 * height), np.inf)
-    np.minimum.at(grid, (rows, cols), r[keep])
-    grid[np.isinf(grid)] = np.nan
-    return grid.astype(np.float32)
+    bins, nearest = _nearest_in_bins(xyz, height)
+    grid = np.full(height * 2 * height, np.nan)
+    grid[bins] = np.linalg.norm(nearest, axis=1)
+    return grid.reshape(height, 2 * height).astype(np.float32)
 
 
 def anchor_height(res: int, fov_deg: float) -> int:
@@ -148,15 +157,9 @@ def surface_normals(xyz: np.ndarray, height: int) -> np.ndarray:
     """[height, 2 height, 3] float32 normals of the surface the centre sees in the points ``xyz`` [N, 3]: in each
     ERP bin the nearest point to the centre (as ``surface_distances``), at its own position, and the normals of
     that grid (``geometry.erp_grid_normals``; exact on a plane); NaN where a bin or a neighbour has no point."""
-    xyz = np.asarray(xyz, np.float64)
-    r = np.linalg.norm(xyz, axis=1)
-    keep = np.flatnonzero(np.isfinite(r) & (r > 0))
-    rows, cols = _erp_bins(xyz[keep], height)
-    bins = rows * 2 * height + cols
-    order = np.lexsort((r[keep], bins))  # by bin, nearest first
-    first = order[np.r_[True, bins[order][1:] != bins[order][:-1]]]
+    bins, nearest = _nearest_in_bins(xyz, height)
     grid = np.full((height * 2 * height, 3), np.nan)
-    grid[bins[first]] = xyz[keep][first]
+    grid[bins] = nearest
     return erp_grid_normals(grid.reshape(height, 2 * height, 3))
 
 
