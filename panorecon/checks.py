@@ -136,6 +136,9 @@ DEPTH_SCALE = float_in(1e-9, 1e9, "depth scale")
 ROLES = ("in", "scene", "teacher", "out-file", "out-dir")
 
 
+NO_NEUTRAL = object()  # ``opt(neutral=...)`` not given: the field is part of every run's identity
+
+
 def opt(
     default=None,
     help: str = "",
@@ -153,6 +156,7 @@ def opt(
     group: str | None = None,
     exclusive: str | None = None,
     suite: bool = True,
+    neutral=NO_NEUTRAL,
 ) -> dataclasses.Field:
     """A config field. ``check``: text -> value (and ``.check(value)``); ``choices``: the allowed values, or a
     function giving them (a registry, read when needed); ``role``: a path's role (ROLES); ``writes``: for an
@@ -161,7 +165,8 @@ def opt(
     the option must be given; ``many``: one or more values (a tuple); ``repeat``: with ``many``, one value per
     occurrence of the option (``--set a=1 --set b=2``; a list after one option would swallow positionals);
     ``group``: a help section; ``exclusive``: exactly one field of that name's group is given; ``suite``: also a
-    suite-file key where the config is a suite row's."""
+    suite-file key where the config is a suite row's; ``neutral``: for an option added after run identities were
+    first committed, the value at which it behaves as before it existed (``identity`` leaves it out there)."""
     if role is not None and role not in ROLES:
         raise ValueError(f"role {role!r}: expected one of {', '.join(ROLES)}")
     meta = dict(
@@ -180,6 +185,8 @@ def opt(
         exclusive=exclusive,
         suite=suite,
     )
+    if neutral is not NO_NEUTRAL:
+        meta["neutral"] = neutral
     return dataclasses.field(default=default, metadata=meta)
 
 
@@ -263,3 +270,20 @@ def validate(config) -> None:
         why = problem(Setting(f.name, f.default, str(f.type), dict(f.metadata)), getattr(config, f.name))
         if why:
             raise ValueError(f"{f.name} = {getattr(config, f.name)!r}{why}")
+
+
+def identity(config) -> dict:
+    """The fields of ``config`` (a flat dataclass instance built with ``opt``) that make a run's identity, as
+    ``dataclasses.asdict`` gives them, less every field at its declared ``neutral`` value: an option added later
+    leaves the identity of a run that does not use it as it was before the option existed. A field without a
+    neutral value is always in."""
+    out = dataclasses.asdict(config)
+    for f in dataclasses.fields(config):
+        if "neutral" in f.metadata and _same(getattr(config, f.name), f.metadata["neutral"]):
+            del out[f.name]
+    return out
+
+
+def _same(a, b) -> bool:
+    """``a == b`` for settings, where True is not 1 and False is not 0."""
+    return type(a) is type(b) and a == b if isinstance(a, bool) or isinstance(b, bool) else a == b

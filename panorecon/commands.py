@@ -179,7 +179,7 @@ def initial_cloud(scene, src: K.SourceArgs, views, cloud_path, report_path, devi
     from .pipeline.stages import fusion_config_for
     from .sources import run_source
 
-    fusion = fusion_config_for(resolve_device(device))
+    fusion = fusion_config_for(resolve_device(device), src.fusion)
     pc, report = run_source(
         scene,
         src.source,
@@ -318,7 +318,7 @@ def ablate(cfg: K.AblateConfig) -> int:
     if cfg.root is not None and not Path(cfg.root).is_dir():
         raise PanoreconInputError(f"--root {cfg.root}: no such folder (expected a dataset root)")
     overrides = dict(parse_override(t) for t in cfg.set)
-    suites = [load_suite(s, cfg.root, overrides, cfg.scene_dir, cfg.max_runs) for s in cfg.suite]
+    suites = [load_suite(s, cfg.root, overrides, cfg.scene_dir, cfg.max_runs, cfg.unpinned) for s in cfg.suite]
     stems = [s.name for s in suites]
     if len(set(stems)) != len(stems):
         raise PanoreconInputError(f"ablate: suites {', '.join(cfg.suite)} share a file name; rename one")
@@ -332,6 +332,12 @@ def ablate(cfg: K.AblateConfig) -> int:
         from .evaluation.ablate import check_scheduler
 
         check_scheduler(cfg.scheduler)
+    if cfg.verify:
+        from .evaluation.verify import verify_suites
+
+        for text in verify_suites(suites, cfg.out, cfg.verify, cfg.jobs, cfg.threads, cfg.device, cfg.cache):
+            print(text)
+        return 0
     for s in suites:
         print(f"{s.title}: {len(s.rows)} runs")
     frames = run_suites(
@@ -344,6 +350,7 @@ def ablate(cfg: K.AblateConfig) -> int:
         progress=not cfg.no_progress,
         device=cfg.device,
         threads=cfg.threads,
+        retry_unavailable=cfg.retry_unavailable,
     )
     for suite, frame, o in zip(suites, frames, suite_out_dirs(suites, Path(cfg.out))):
         cols = [c for c in ("psnr_pl", "psnr_ho", "abs_rel", "chamfer", "sec_total", "peak_mb") if c in frame]

@@ -17,6 +17,7 @@ from pathlib import Path
 from . import checks as C
 from .checks import nest, opt
 from .device import DEVICE_NAME
+from .fusion import FusionOptions
 from .splat.trainer import TrainConfig
 from .teachers.spec import TEACHER_SPEC, TeacherSpec
 
@@ -45,6 +46,8 @@ ABLATE_WRITES = (
     "*/results.md",
     "*/*.png",
     "*/report.html",
+    "verify.md",
+    "*/verify.md",
 )
 MAX_RUNS = 10_000  # a larger suite needs an explicit --max-runs
 # `train`'s point-source views where they differ from the source's own default (Fibonacci: 20, the paper's):
@@ -153,6 +156,7 @@ class SourceArgs:
     views: int | None = opt(
         None, "views of the point source (fibonacci, latlong; default: the source's own)", check=C.VIEWS
     )
+    fusion: FusionOptions = nest(FusionOptions)
 
     def __post_init__(self):
         C.validate(self)
@@ -316,6 +320,21 @@ class AblateConfig:
         "without Open3D, e.g. a GPU machine); the rows' scene is then the folder, with its own runs",
         role="in",
         metavar="DIR",
+    )
+    unpinned: bool = opt(
+        False,
+        "read each suite without its [pinned] settings: a committed table rerun under today's defaults (give it "
+        "another --out)",
+    )
+    retry_unavailable: bool = opt(
+        False, "try again the runs that read n/a in results.csv (their source could not run where they were made)"
+    )
+    verify: int = opt(
+        0,
+        "recompute this many committed rows of each suite's results.csv on the current code and set each metric "
+        "beside its committed value, with a verdict against the seed-to-seed spread (OUT/.../verify.md); nothing "
+        "else is run or rewritten",
+        check=C.int_in(0, 10_000, "row count"),
     )
     from_csv: str | None = opt(
         None,

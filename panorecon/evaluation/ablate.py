@@ -23,6 +23,7 @@ import pandas as pd
 from ..io import atomic_write
 from ..pipeline import Row, StageCache, run_points, run_train
 from .environment import environment, git_commit
+from .orphans import check_leftovers
 from .suite import Suite, resolve_names
 
 ENGINES = ("local", "dask")
@@ -135,28 +136,41 @@ def suite_out_dirs(suites: list[Suite], out: Path) -> list[Path]:
     return [out / s for s in stems]
 
 
-def finished_rows(paths: list[Path]) -> dict[str, dict]:
-    """run_id -> its results.csv record, over every ``paths`` file that exists (a row that read n/a is left
-    out: it is cheap to try again, and it may run on another machine; a "failed: ..." row is the run's outcome
-    and kept). A row in several files keeps the first."""
+def read_results(path: Path) -> dict[str, dict]:
+    """run_id -> record of a results.csv (empty when there is none); a run in it twice keeps the first."""
+    if not path.is_file():
+        return {}
+    frame = pd.read_csv(path)
+    if "run_id" not in frame:
+        return {}
+    found: dict[str, dict] = {}
+    for rec in frame.to_dict("records"):
+        found.setdefault(rec["run_id"], rec)
+    return found
+
+
+def unavailable(rec: dict) -> bool:
+    """A results.csv record of a run that read n/a (its source cannot run on the machine that tried it)."""
+    note = rec.get("unavailable_note")
+    return isinstance(note, str) and note.startswith("n/a")
+
+
+def finished_rows(paths: list[Path], retry_unavailable: bool = False) -> dict[str, dict]:
+    """run_id -> its results.csv record, over every ``paths`` file that exists; a row in several files keeps the
+    first. ``retry_unavailable``: a row that read n/a is left out, to be tried again (on another machine it may
+    run); by default it is as finished as any other (a "failed: ..." row, the run's outcome, always is)."""
     found: dict[str, dict] = {}
     for p in paths:
-        if not p.is_file():
-            continue
-        frame = pd.read_csv(p)
-        if "run_id" not in frame:
-            continue
-        for rec in frame.to_dict("records"):
-            note = rec.get("unavailable_note")
-            if isinstance(note, str) and note.startswith("n/a"):
-                continue
-            found.setdefault(rec["run_id"], rec)
+        for rid, rec in read_results(p).items():
+            if not (retry_unavailable and unavailable(rec)):
+                found.setdefault(rid, rec)
     return found
 
 
 def _reused(rec: dict, row: Row) -> dict:
     """A results.csv record ``rec`` of the same run (same run_id) as ``row``, under this row's names: its label
-    and suite columns from this suite, its measurements as measured."""
+    and suite columns from this suite, its measurements (and ``cached``: where its stages came from when it was
+    computed) as recorded, so a table read back is rewritten unchanged."""
     return {
         **rec,
         "label": row.label,
@@ -165,7 +179,6 @@ def _reused(rec: dict, row: Row) -> dict:
         "source": row.source,
         "teacher": row.teacher,
         **row.extra,
-        "cached": "results.csv",
     }
 
 
@@ -188,6 +201,7 @@ def run_suites(
     progress: bool = True,
     device: str = "auto",
     threads: int = 0,
+    retry_unavailable: bool = False,
 ) -> list[pd.DataFrame]:
     """Run every row of ``suites`` once: a run that several suites share (same settings: same ``Row.run_id``)
     computes once and appears in each. Runs already in a results.csv under ``out_dir`` (this suite's or another's
@@ -195,7 +209,9 @@ def run_suites(
     stage cache), (scene, seed) block by block, and every results.csv is rewritten as each run finishes.
     Writes results.csv, results.md, plots and report.html per suite (``suite_out_dirs``). ``threads``: torch
     threads per worker (0: cores // jobs). ``device``: where the stages compute (auto, cpu, cuda); a cached
-    stage keeps the device it ran on."""
+    stage keeps the device it ran on. A results.csv holding runs its suite does not produce here is refused
+    before anything runs (``orphans.check_leftovers``): nothing committed is dropped. ``retry_unavailable``: runs
+    that read n/a are tried again (by default they are finished, as any other)."""
     from ..device import resolve_device
     from ..pipeline.cache import code_digest
     from ..pipeline.stages import TRAIN_CODE
@@ -211,7 +227,8 @@ def run_suites(
         resolve_names(suite)  # every scene, source and teacher, before the first stage and before --out is made
     out = Path(out_dir)
     outs = suite_out_dirs(suites, out)
-    done_csv = finished_rows([o / "results.csv" for o in outs])
+    check_leftovers(suites, outs, [read_results(o / "results.csv") for o in outs], jobs)
+    done_csv = finished_rows([o / "results.csv" for o in outs], retry_unavailable)
     for o in outs:
         o.mkdir(parents=True, exist_ok=True)
     cache = StageCache(cache_dir or out / "cache")

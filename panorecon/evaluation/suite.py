@@ -1,5 +1,7 @@
 """Ablation suites as TOML files (``eval/suites/*.toml``).
 
+    extends = "table2.toml"           # optional: that suite, with this file's tables over it ([defaults] and
+                                      # [pinned] key by key)
     title = "Table 2: point-cloud initialization"
     rows = ["source"]                 # the columns that name one table row (averaged over scenes)
     [defaults]                        # applies to every row
@@ -15,6 +17,8 @@
     label = "Fibonacci 15"
     views = 15
     margins = { psnr_pl = 0.1 }       # optional: equivalence margins per metric (default: 0.1 dB for a PSNR)
+    [pinned]                          # optional: settings whose defaults moved since the committed table ran,
+    flatten_every = 0                 # at the values it ran with (as [defaults]; `ablate --unpinned` leaves them out)
     [paper]                           # the paper's published numbers, shown beside ours
     caption = "..."
     columns = ["PSNR", "SSIM", "LPIPS", "Time"]
@@ -57,6 +61,7 @@ from pathlib import Path
 
 from .. import checks as C
 from ..checks import Setting, problem, settings
+from ..fusion import FusionOptions
 from ..io import PanoreconInputError
 from ..pipeline import Row
 
@@ -65,9 +70,13 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
+FUSION_KEYS = {f.name for f in dataclasses.fields(FusionOptions)}
 ROW_KEYS = {"scene", "width", "source", "teacher", "views", "train", "label", "depth", "depth_scale", "depth_kind"}
+ROW_KEYS |= FUSION_KEYS
 ROOT_ENV = "PANORECON_DATASET_ROOT"
 TOP_KEYS = {
+    "extends": str,
+    "pinned": dict,
     "title": str,
     "rows": list,
     "defaults": dict,
@@ -95,6 +104,8 @@ class Suite:
     reference: str | None = None  # the label of the reference row
     margins: dict = field(default_factory=dict)  # metric column -> equivalence margin (``stats.margin_for``)
     paper_labels: dict = field(default_factory=dict)  # our row label -> index of its [paper] row (``match``)
+    pinned: dict = field(default_factory=dict)  # [pinned]: the settings the committed table ran with
+    unpinned: bool = False  # read without [pinned]: today's defaults
 
     def paper_figures(self) -> dict[str, dict[str, float]]:
         """The paper's figures of our rows: metric column (``psnr_pl``, ``ssim_pl``, ``lpips_pl``: the paper's
@@ -396,12 +407,33 @@ def parse_override(text: str) -> tuple[str, object]:
     return key.strip(), parsed
 
 
+def _suite_data(path: Path, within: tuple = ()) -> dict:
+    """The suite file's top-level tables, checked, with those of the suite it ``extends`` (a path relative to it)
+    beneath: [defaults] and [pinned] merged key by key, every other table or value taken whole from ``path``."""
+    if not path.is_file():
+        where = f" (extended by {within[-1]})" if within else " (the shipped suites are in eval/suites/)"
+        raise PanoreconInputError(f"suite {path}: no such file{where}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise PanoreconInputError(f"suite {path}: not valid TOML ({e})") from None
+    _check_top(path, data)
+    if "extends" not in data:
+        return data
+    base = path.parent / data.pop("extends")
+    if base.resolve() in within or base.resolve() == path.resolve():
+        raise PanoreconInputError(f"suite {path}: extends {base}, which extends it back")
+    parent = _suite_data(base, (*within, path.resolve()))
+    return {**parent, **data} | {k: {**parent.get(k, {}), **data.get(k, {})} for k in ("defaults", "pinned")}
+
+
 def load_suite(
     path,
     root: str | None = None,
     overrides: dict | None = None,
     scene_dir: str | None = None,
     max_runs: int | None = None,
+    unpinned: bool = False,
 ) -> Suite:
     """Read and check a suite file -> Suite with one Row per grid point (one clear error for a bad file).
     ``root``: the dataset root for ``{root}`` (default $PANORECON_DATASET_ROOT). ``overrides``: settings that
@@ -410,22 +442,26 @@ def load_suite(
     ``scene_dir``: each scene NAME is read from its ``panorecon render`` folder ``scene_dir/NAME`` (a machine
     without Open3D); the rows' scene is that folder's path, so their runs and cache entries are their own.
     ``max_runs``: a suite that expands to more rows than this is refused with its exact count (``count_rows``,
-    from the grid's sizes) before any row is built."""
+    from the grid's sizes) before any row is built. ``unpinned``: the suite without its [pinned] settings (a
+    committed table rerun under today's defaults)."""
     path = Path(path)
     root = root or os.environ.get(ROOT_ENV)
-    if not path.is_file():
-        raise PanoreconInputError(f"suite {path}: no such file (the shipped suites are in eval/suites/)")
-    try:
-        data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise PanoreconInputError(f"suite {path}: not valid TOML ({e})") from None
-    _check_top(path, data)
+    data = _suite_data(path)
     from ..splat.trainer import TrainConfig
 
     schema = row_settings()
     train_fields = {f.name for f in dataclasses.fields(TrainConfig)}
     defaults, grid, variants = data.get("defaults", {}), data.get("grid", {}), data.get("variants", [{}])
+    pinned = data.get("pinned", {})
     _check_table(path, "[defaults]", defaults, schema)
+    _check_table(path, "[pinned]", pinned, schema)
+    for k in pinned:
+        if k in grid or any(k in v for v in variants):
+            raise PanoreconInputError(
+                f"suite {path}: [pinned] {k}: {k} is a row variable of this suite ([grid] or [[variants]])"
+            )
+    if not unpinned:
+        defaults = {**defaults, **pinned}
     if overrides:
         _check_table(path, "--set", overrides, schema)
         for k in overrides:
@@ -497,6 +533,7 @@ def load_suite(
                             else None,
                             label=label,
                             depth=depth,
+                            fusion={k: spec[k] for k in sorted(FUSION_KEYS) if k in spec} or None,
                             extra={
                                 **extra,
                                 **{k: spec[k] for k in ("strategy", "labels", "iters", "res") if k in spec},
@@ -524,6 +561,8 @@ def load_suite(
         reference_labels[0] if reference else None,
         margins,
         paper_labels,
+        pinned,
+        unpinned,
     )
 
 

@@ -47,6 +47,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .. import checks as C
+from ..checks import opt
 from ..geometry import ViewDepth, erp_pixel_to_lonlat, sample_erp
 from .affine import align_affine_views
 from .connectivity import check_connectivity
@@ -142,6 +144,35 @@ class FusionConfig:
             )
         if not (self.tol > 0 and self.maxiter >= 1):
             raise ValueError(f"FusionConfig tol={self.tol}, maxiter={self.maxiter}: expected tol > 0, maxiter >= 1")
+
+
+@dataclass(frozen=True)
+class FusionOptions:
+    """The fusion settings a command line or a suite row sets (the rest of ``FusionConfig`` is the solver's and
+    changes no result beyond its tolerance). Each declares the value at which it behaves as before it existed
+    (``neutral``): a run that leaves it there keeps the identity it had then (``checks.identity``)."""
+
+    edge_jump: float = opt(
+        FusionConfig.edge_jump,
+        "log-distance jump of a depth edge: view pixels next to one are not observed and the upsampling keeps to "
+        "one side of it (FusionConfig.edge_jump; ln 1.5); 0: off",
+        check=C.float_in(0.0, 10.0, "log distance"),
+        neutral=0.0,
+    )
+    edge_reach: int = opt(
+        FusionConfig.edge_reach,
+        "view pixels within which steps over half edge_jump go with a depth edge (a teacher's blur spreads a jump "
+        "over a few pixels); 0: edge_jump's test only",
+        check=C.int_in(0, 64, "view pixels"),
+        neutral=0,
+    )
+
+    def __post_init__(self):
+        C.validate(self)
+
+    def config(self, **solver) -> FusionConfig:
+        """A ``FusionConfig`` with these settings and the solver's ``solver`` (e.g. ``cg_device``)."""
+        return FusionConfig(edge_jump=self.edge_jump or None, edge_reach=self.edge_reach, **solver)
 
 
 @dataclass

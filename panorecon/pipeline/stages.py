@@ -13,7 +13,6 @@ resident memory of the process that computed it.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
@@ -24,12 +23,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..checks import identity
 from ..io import atomic_write, peak_rss_mb, write_json
 from ..teachers import teacher_fingerprint
 from .cache import StageCache, code_digest, stage_key
 
 if TYPE_CHECKING:
-    from ..fusion import FusionConfig
+    from ..fusion import FusionConfig, FusionOptions
 
 POINTS_CODE = ("geometry", "fusion", "sources", "teachers", "scenes", "metrics", "io")
 TRAIN_CODE = POINTS_CODE + ("splat",)
@@ -52,6 +52,7 @@ class Row:
     extra: dict = field(default_factory=dict, compare=False)  # suite columns carried into results (not keyed)
     depth: tuple | None = None  # (path, metres per unit or None, "distance" | "z"): a real panorama's true depth
     seed: int = 0
+    fusion: dict | None = None  # FusionOptions overrides (edge_jump, edge_reach)
 
     def _scene_params(self) -> dict:
         return {"scene": self.scene, "width": self.width, **({"depth": list(self.depth)} if self.depth else {})}
@@ -64,6 +65,8 @@ class Row:
             "views": self.views,
             # a seed-independent stage keeps the key it had before suites had seeds (its cache stays valid)
             **({"seed": self.seed} if self._points_seeded() else {}),
+            # fusion settings away from the values that behave as before they existed (none: the key as it was)
+            **({"fusion": fusion} if (fusion := identity(self.fusion_options())) else {}),
         }
 
     def _train_params(self) -> dict:
@@ -71,7 +74,7 @@ class Row:
             **self._scene_params(),
             "teacher": teacher_fingerprint(self.teacher),
             "seed": self.seed,
-            "config": self.train_config_dict(),
+            "config": identity(self.train_config()),
         }
 
     def points_key(self) -> str:
@@ -83,14 +86,22 @@ class Row:
     def run_id(self) -> str:
         """SHA-256 (20 hex) of the row's settings, without the code digests of the stage keys: the same run on
         any machine and any version of the code (``ablate`` resumes from a results.csv by it; the ``code``
-        column says which code computed a row)."""
+        column says which code computed a row). Settings enter as ``checks.identity`` gives them: an option
+        added later, at the value that behaves as before it existed, leaves the identity as it was."""
         params = {"points": self._points_params(), "train": self._train_params() if self.train is not None else None}
         return hashlib.sha256(json.dumps(params, sort_keys=True, default=str).encode()).hexdigest()[:20]
 
-    def train_config_dict(self) -> dict:
+    def train_config(self):
+        """The row's ``TrainConfig``."""
         from ..splat.trainer import TrainConfig
 
-        return dataclasses.asdict(TrainConfig(**(self.train or {})))
+        return TrainConfig(**(self.train or {}))
+
+    def fusion_options(self):
+        """The row's ``FusionOptions``."""
+        from ..fusion import FusionOptions
+
+        return FusionOptions(**(self.fusion or {}))
 
     def _points_seeded(self) -> bool:
         from ..sources import uses_seed
@@ -185,14 +196,14 @@ def teacher_depth_fn(scene, teacher_spec: str | None, cache_dir: Path | None = N
     return depth_fn
 
 
-def fusion_config_for(device) -> FusionConfig | None:
-    """The fusion settings for a run on ``device`` (a torch.device): the torch CG on a GPU, else the defaults
-    (SciPy's CG). The device is not part of any stage key: results agree to the solver's tolerance."""
-    if device is None or device.type != "cuda":
-        return None
-    from ..fusion import FusionConfig
+def fusion_config_for(device, options: FusionOptions | None = None) -> FusionConfig:
+    """The fusion settings for a run on ``device`` (a torch.device) with ``options`` (default: the defaults): the
+    torch CG on a GPU, else SciPy's CG. The device is not part of any stage key: results agree to the solver's
+    tolerance."""
+    from ..fusion import FusionOptions
 
-    return FusionConfig(cg_device=str(device))
+    options = options or FusionOptions()
+    return options.config(cg_device=str(device)) if device is not None and device.type == "cuda" else options.config()
 
 
 def run_points(
@@ -224,7 +235,12 @@ def _compute_points(cache: StageCache, row: Row, key: str, provenance: dict | No
     scene_s = time.perf_counter() - t
     try:
         pc, report = run_source(
-            scene, row.source, row._teacher_for_points(), row.views, fusion_config_for(device), seed=row.seed
+            scene,
+            row.source,
+            row._teacher_for_points(),
+            row.views,
+            fusion_config_for(device, row.fusion_options()),
+            seed=row.seed,
         )
     except PanoreconInputError as e:
         # a source that cannot run here says why ("n/a: needs a CUDA build ..."); one that ran and gave no point

@@ -90,6 +90,7 @@ class TrainConfig:
         "pseudo-label view size in pixels when it differs from the held-out views' `res` (the labels carry the "
         "panorama's detail up to its own angular resolution, ERP width / 360 px per degree); 0: res",
         check=C.int_in(0, 4096, "label view size"),
+        neutral=0,
     )
     fov_deg: float = opt(60.0, "field of view of the label and held-out views (degrees)", check=C.FOV_DEG)
     layout: str = opt("fibonacci", "layout of the pseudo-label directions", choices=_layouts)
@@ -145,18 +146,21 @@ class TrainConfig:
         "(splat/regularisers.py), so no stack of Gaussians along a centre ray blends right only from the centre; one "
         "more render of each label view per step; 0: none",
         check=C.LOSS_WEIGHT,
+        neutral=0.0,
     )
     w_anchor: float = opt(
         0.0,
         "weight of the surface anchor: each Gaussian held within ~10 % of the given cloud's surface along its ray "
         "from the centre, where no label sees it move (splat/regularisers.py); 0: none",
         check=C.LOSS_WEIGHT,
+        neutral=0.0,
     )
     footprint_filter: float = opt(
         0.0,
         "variance of Mip-Splatting's 3D smoothing filter in squared label pixels (its 0.2): every Gaussian rendered "
         "no thinner than the finest label pixel that sees it (splat/footprint.py); 0: none",
         check=C.float_in(0.0, 100.0, "filter variance"),
+        neutral=0.0,
     )
     antialiased: bool = opt(
         False,
@@ -164,6 +168,7 @@ class TrainConfig:
         "opacity times sqrt(det S / det(S + 0.3 I)) of its 2D covariance S, so the 0.3 px^2 low-pass keeps what "
         "it covers instead of widening it, and a view that sees the surface smaller than the labels did sees "
         "it area-averaged, not aliased; its PLY is then meant for antialiased renderers",
+        neutral=False,
     )
     flatten_every: int = opt(
         100,
@@ -171,18 +176,21 @@ class TrainConfig:
         "the plane of the given cloud's surface there, a disc on the surface that the centre sees as before "
         "(splat/regularisers.py); 0: never",
         check=C.STEP,
+        neutral=0,
     )
     offcentre_labels: int = opt(
         0,
         "masked pseudo-labels from positions off the panorama's centre, beside `labels`: the panorama through the "
         "initial cloud's geometry, co-visible pixels only (splat/offcentre.py); 0: none",
         check=C.COUNT,
+        neutral=0,
     )
     offcentre_radius: float = opt(
         0.7,
         "positions of the off-centre labels: uniform in the ball of this fraction of the cloud's free-space radius "
         "(the distance of its nearest 1 % of points from the centre)",
         check=C.FRACTION,
+        neutral=0.7,
     )
     lr_means: float = opt(1.6e-4, "initial means learning rate, times the scene extent")
     lr_means_final: float = opt(1.6e-6, "final means learning rate (exponential decay), times the extent")
@@ -243,12 +251,14 @@ class TrainConfig:
         "fewer, larger Gaussians (down to one per 16 x 16 of the label-pixel spacing; splat/initial.thin_by_detail); "
         "0: the label resolution everywhere (the default's paired held-out difference: docs/benchmarks.md)",
         check=C.float_in(0.0, 1.0, "colour standard deviation"),
+        neutral=0.0,
     )
     init_detail_depth: float = opt(
         0.01,
         "geometric tolerance of init_detail: RMS distance of a region's points from their plane over their mean "
         "distance",
         check=C.float_in(0.0, 1.0, "relative distance"),
+        neutral=0.01,
     )
     seed: int = opt(0, "random seed", check=C.SEED)
 

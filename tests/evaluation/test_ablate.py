@@ -77,10 +77,14 @@ def test_outputs_have_every_metric_with_time_and_memory(first_run):
     assert page.count("data:image/png;base64,") == 2 + 2 * 3 and page.count("<div class=strip>") == 2
 
 
-def test_second_run_reads_everything_from_results_csv_then_from_the_cache(first_run, tmp_path):
+def test_second_run_reads_everything_from_results_csv_then_from_the_cache(first_run, tmp_path, capsys):
     d, suite, frame = first_run
+    before = (d / "out" / "results.csv").read_bytes()
+    capsys.readouterr()
     again = run_suite(suite, d / "out", jobs=1, progress=False)
-    assert set(again["cached"]) == {"results.csv"}
+    assert "0 in the stage cache, 2 in results.csv, 0 to run" in capsys.readouterr().out
+    assert (d / "out" / "results.csv").read_bytes() == before  # rows read back are rewritten as they were
+    assert list(again["cached"]) == list(frame["cached"])  # where the stages came from when they were computed
     pd.testing.assert_series_equal(again["psnr_pl"], frame["psnr_pl"])
     import shutil
 

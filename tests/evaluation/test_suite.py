@@ -458,12 +458,67 @@ def test_the_row_count_from_the_sizes_is_the_expanded_count(tmp_path, text):
 def test_every_shipped_suite_counts_its_rows_exactly():
     from pathlib import Path
 
-    from panorecon.evaluation.suite import count_rows, tomllib
+    from panorecon.evaluation.suite import _suite_data, count_rows
 
     for p in sorted((Path(__file__).parents[2] / "eval" / "suites").glob("*.toml")):
         if "{root}" in p.read_text():
             continue
-        data = tomllib.loads(p.read_text())
+        data = _suite_data(p)  # with the suite it extends
         seeds = data.get("seeds")
         n = count_rows(p, data.get("defaults", {}), data.get("grid", {}), data.get("variants", [{}]), seeds, None)
         assert n == len(load_suite(p).rows), p.name
+
+
+PINNED = """
+title = "t"
+rows = ["source"]
+[defaults]
+width = 64
+teacher = "sim:clean"
+iters = 5
+[pinned]
+flatten_every = 0
+edge_reach = 0
+[grid]
+scene = ["bedroom"]
+source = ["fibonacci"]
+"""
+
+
+def test_pinned_settings_hold_unless_unpinned(tmp_path):
+    (row,) = load_suite(write(tmp_path, PINNED)).rows
+    assert row.train == {"iters": 5, "flatten_every": 0} and row.fusion == {"edge_reach": 0}
+    (today,) = load_suite(write(tmp_path, PINNED), unpinned=True).rows
+    assert today.train == {"iters": 5} and today.fusion is None and today.run_id() != row.run_id()
+    # --set over a pinned setting: another run, as asked
+    (other,) = load_suite(write(tmp_path, PINNED), overrides={"flatten_every": 50}).rows
+    assert other.train["flatten_every"] == 50
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        (PINNED.replace("edge_reach = 0", "edge_reach = -1"), "edge_reach = -1"),
+        (PINNED.replace("edge_reach = 0", "flatten = 0"), "did you mean 'flatten_every'"),
+        (PINNED.replace("source = [", "flatten_every = [0, 100]\nsource = ["), r"\[pinned\] flatten_every"),
+    ],
+)
+def test_bad_pins_are_one_clear_error(tmp_path, text, match):
+    with pytest.raises(PanoreconInputError, match=match):
+        load_suite(write(tmp_path, text))
+
+
+def test_a_suite_that_extends_another_is_it_with_its_own_tables_over(tmp_path):
+    (tmp_path / "base.toml").write_text(PINNED)
+    (tmp_path / "later.toml").write_text('extends = "base.toml"\n[pinned]\nflatten_every = 100\n[defaults]\niters = 7\n')
+    s = load_suite(tmp_path / "later.toml")
+    assert s.name == "later" and s.title == "t" and s.pinned == {"flatten_every": 100, "edge_reach": 0}
+    (row,) = s.rows
+    assert row.train == {"iters": 7, "flatten_every": 100} and row.fusion == {"edge_reach": 0}
+    (tmp_path / "loop.toml").write_text('extends = "loop2.toml"\n')
+    (tmp_path / "loop2.toml").write_text('extends = "loop.toml"\n')
+    with pytest.raises(PanoreconInputError, match="extends it back"):
+        load_suite(tmp_path / "loop.toml")
+    (tmp_path / "lost.toml").write_text('extends = "nowhere.toml"\n')
+    with pytest.raises(PanoreconInputError, match="nowhere.toml: no such file"):
+        load_suite(tmp_path / "lost.toml")
