@@ -94,6 +94,27 @@ def test_second_run_reads_everything_from_results_csv_then_from_the_cache(first_
     pd.testing.assert_series_equal(from_cache["psnr_pl"], frame["psnr_pl"])
 
 
+def test_verify_recomputes_committed_rows_and_finds_them_reproduced(first_run, tmp_path):
+    from panorecon.evaluation.verify import pick_rows, verdict, verify_suites
+
+    d, suite, frame = first_run
+    before = (d / "out" / "results.csv").read_bytes()
+    (text,) = verify_suites([suite], d / "out", k=1, jobs=1, threads=1)
+    assert text == (d / "out" / "verify.md").read_text()
+    lines = [line for line in text.splitlines() if line.startswith("| fibonacci | bedroom | 0 |")]
+    assert {line.split(" | ")[4] for line in lines} >= {"psnr_pl", "psnr_ho", "abs_rel", "gaussians"}
+    assert all(line.rstrip(" |").endswith("reproduced") for line in lines), text
+    assert (d / "out" / "results.csv").read_bytes() == before  # nothing committed is touched
+    # a difference is weighed by the seed spread: within 2.77 SDs drifted, beyond it changed
+    assert verdict(30.0, 30.0, 0.1) == "reproduced" and verdict(30.0, 30.2, 0.1) == "drifted"
+    assert verdict(30.0, 30.3, 0.1) == "changed beyond noise" and verdict(30.0, 30.1, float("nan")).startswith(
+        "differs"
+    )
+    # the chosen rows cover the table rows first
+    records = {r.run_id(): {"unavailable_note": float("nan")} for r in suite.rows}
+    assert {r.label for r in pick_rows(suite.rows, records, 2)} == {"fibonacci", "random"}
+
+
 def test_a_cached_row_keeps_the_commit_of_the_run_that_computed_it(first_run):
     d, suite, frame = first_run
     from panorecon.evaluation.ablate import result_row
@@ -137,7 +158,7 @@ def test_bench_compare_fails_on_regressions_and_warns_on_slowdowns():
     assert any("rasterizer" in f for f in compare(drift, base)[0])
 
 
-def test_a_source_that_cannot_run_here_reads_na_and_the_suite_goes_on(tmp_path):
+def test_a_source_that_cannot_run_here_reads_na_and_the_suite_goes_on(tmp_path, capsys):
     import pycolmap
 
     if pycolmap.has_cuda:
@@ -151,6 +172,12 @@ def test_a_source_that_cannot_run_here_reads_na_and_the_suite_goes_on(tmp_path):
     assert out.loc[0, "unavailable_note"].startswith("n/a: needs a CUDA build of pycolmap")
     assert out.loc[1, "points"] == 100_000
     assert "n/a: needs a CUDA build" in (tmp_path / "out" / "results.md").read_text()
+    # read again, the n/a row is as finished as any other; --retry-unavailable takes it again from the stages
+    capsys.readouterr()
+    run_suite(load_suite(tmp_path / "s.toml"), tmp_path / "out", jobs=1, progress=False)
+    assert "0 in the stage cache, 2 in results.csv, 0 to run" in capsys.readouterr().out
+    run_suite(load_suite(tmp_path / "s.toml"), tmp_path / "out", jobs=1, progress=False, retry_unavailable=True)
+    assert "1 in the stage cache, 1 in results.csv, 0 to run" in capsys.readouterr().out
 
 
 SEEDED = TINY.replace(

@@ -32,16 +32,15 @@ def test_the_moved_defaults_are_the_options_on_by_default_since():
 
 def _committed(tmp_path, rows) -> None:
     (tmp_path / "out").mkdir()
-    frame = pd.DataFrame([{"run_id": r.run_id(), "label": r.label, "scene": r.scene, "sec_total": 3600.0} for r in rows])
+    records = [{"run_id": r.run_id(), "label": r.label, "scene": r.scene, "sec_total": 3600.0} for r in rows]
+    frame = pd.DataFrame(records)
     frame.to_csv(tmp_path / "out" / "results.csv", index=False)
 
 
 def test_rows_under_older_defaults_are_named_and_nothing_runs_or_is_written(tmp_path):
     (tmp_path / "s.toml").write_text(SUITE)
     suite = load_suite(tmp_path / "s.toml")
-    old = [
-        dataclasses.replace(r, train={**r.train, "flatten_every": 0}, fusion={"edge_reach": 0}) for r in suite.rows
-    ]
+    old = [dataclasses.replace(r, train={**r.train, "flatten_every": 0}, fusion={"edge_reach": 0}) for r in suite.rows]
     stranger = dataclasses.replace(suite.rows[0], train={"iters": 6})
     _committed(tmp_path, [*old, stranger])
     before = (tmp_path / "out" / "results.csv").read_bytes()

@@ -510,7 +510,8 @@ def test_bad_pins_are_one_clear_error(tmp_path, text, match):
 
 def test_a_suite_that_extends_another_is_it_with_its_own_tables_over(tmp_path):
     (tmp_path / "base.toml").write_text(PINNED)
-    (tmp_path / "later.toml").write_text('extends = "base.toml"\n[pinned]\nflatten_every = 100\n[defaults]\niters = 7\n')
+    later = 'extends = "base.toml"\n[pinned]\nflatten_every = 100\n[defaults]\niters = 7\n'
+    (tmp_path / "later.toml").write_text(later)
     s = load_suite(tmp_path / "later.toml")
     assert s.name == "later" and s.title == "t" and s.pinned == {"flatten_every": 100, "edge_reach": 0}
     (row,) = s.rows
