@@ -384,7 +384,7 @@ def run_export(cfg) -> int:
 
     scene = cfg.scene.load()
     src = cfg.source
-    cloud, report = run_source(scene, src.source, src.teacher, src.views)
+    cloud, report = run_source(scene, src.source, src.teacher, src.views, src.fusion.config())
     about = {"scene": scene.name, "source": src.source, "teacher": report.get("teacher")}
     out = export_scene(
         scene, cloud, cfg.labels, cfg.format, cfg.out, cfg.res, cfg.fov, cfg.image_format, cfg.overwrite, about
