@@ -95,7 +95,7 @@ def test_second_run_reads_everything_from_results_csv_then_from_the_cache(first_
 
 
 def test_verify_recomputes_committed_rows_and_finds_them_reproduced(first_run, tmp_path):
-    from panorecon.evaluation.verify import pick_rows, verdict, verify_suites
+    from panorecon.evaluation.verify import pick_rows, seed_sd, verdict, verify_suites
 
     d, suite, frame = first_run
     before = (d / "out" / "results.csv").read_bytes()
@@ -107,6 +107,12 @@ def test_verify_recomputes_committed_rows_and_finds_them_reproduced(first_run, t
     assert (d / "out" / "results.csv").read_bytes() == before  # nothing committed is touched
     # a difference is weighed by the seed spread: within 2.77 SDs drifted, beyond it changed
     assert verdict(30.0, 30.0, 0.1) == "reproduced" and verdict(30.0, 30.2, 0.1) == "drifted"
+    assert verdict(0.02, 0.02 + 1e-9, 0.1) == "reproduced"  # float32 rounding
+    records = {
+        str(i): {"label": 120, "scene": s, "m": v}
+        for i, (s, v) in enumerate([("a", 1), ("a", 3), ("b", 5), ("b", 5), ("c", 9)])
+    }
+    assert seed_sd(records, "120", "m") == pytest.approx(1.0)  # (2 * 1 + 0 * 1) / 2 df, one-seed scene left out
     assert verdict(30.0, 30.3, 0.1) == "changed beyond noise" and verdict(30.0, 30.1, float("nan")).startswith(
         "differs"
     )
