@@ -81,15 +81,15 @@ def ssi_loss(pred: torch.Tensor, depth: torch.Tensor, alpha: float = 0.5) -> tup
 
 def align_disparity(pred: np.ndarray, true_z: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """An affine disparity [H, W] aligned to the truth: least-squares scale and shift (float64) of ``pred`` to
-    1 / ``true_z`` on ``mask``, then depth = 1 / aligned disparity, the disparity floored at a tenth of the
-    smallest true disparity on the mask (a depth ten times the farthest true one) -> z-depth [H, W] float64,
-    NaN off the mask."""
+    1 / ``true_z`` on ``mask``, then depth = 1 / aligned disparity, the depth capped at the farthest true depth
+    on the mask (MiDaS's evaluation caps at its dataset's range: an aligned disparity at or below 0 has no depth)
+    -> z-depth [H, W] float64, NaN off the mask."""
     p = pred[mask].astype(np.float64)
     d = 1.0 / true_z[mask].astype(np.float64)
     A = np.stack([p, np.ones_like(p)], 1)
     (s, t), *_ = np.linalg.lstsq(A, d, rcond=None)
     out = np.full(pred.shape, np.nan)
-    out[mask] = 1.0 / np.maximum(s * p + t, 0.1 * d.min())
+    out[mask] = 1.0 / np.maximum(s * p + t, d.min())
     return out
 
 
