@@ -6,7 +6,8 @@ Teachers: every ``sim:`` profile (seed 0), every learned model shipped in ``pano
 (through ``onnx:``, as any user's model), and two controls: ``constant`` (one depth everywhere) and
 ``position prior`` (the mean training depth per pixel position: the learned teachers' training crops' z-depth,
 each crop divided by its median, averaged per pixel in log depth -- a plain mean is pulled far by the few
-distant outdoor pixels; it knows where a pixel lies in its view and nothing of the image). Scenes: the eight table scenes at the tables' ERP width, the 20 Fibonacci views of ``points`` (square,
+distant outdoor pixels; it knows where a pixel lies in its view and nothing of the image). Scenes: the eight
+table scenes at the tables' ERP width, the 20 Fibonacci views of ``points`` (square,
 ``default_view_size(width)`` pixels, the layout's 89.4 degree FOV); "seen" and "unseen" are the learned
 teachers' training families and held-out families (the table scenes themselves are never trained on: training
 uses variants ``@100`` and up).
