@@ -5,27 +5,26 @@ import numpy as np
 import pytest
 import torch
 
-from panorecon.learned.loss import GRADIENT_SCALES, affine_disparity_metrics, scale_and_shift, ssi_loss
+from panorecon.learned.loss import GRADIENT_SCALES, affine_disparity_metrics, ssi_loss
 
 
 def reference_loss(pred: torch.Tensor, depth: torch.Tensor, alpha: float) -> torch.Tensor:
-    """The loss, written out: per image the least-squares (s, t) of [pred, 1] to the normalised disparity
-    (torch.linalg.lstsq), the aligned residual, then every valid pixel and every valid neighbouring pair in
-    loops."""
+    """The loss, written out: per image the valid values sorted, the median element (n - 1) // 2, the mean
+    absolute deviation from it, each map normalised; then every valid pixel and every valid neighbouring pair
+    in loops."""
     n, h, w = depth.shape
     residuals, masks = [], []
     for i in range(n):
         valid = torch.isfinite(depth[i]) & (depth[i] > 0)
-        d = 1.0 / depth[i][valid]
-        d = d / d.mean()
-        p = pred[i][valid]
-        st = torch.linalg.lstsq(torch.stack([p, torch.ones_like(p)], 1), d[:, None]).solution[:, 0]
         r = torch.zeros(h, w, dtype=pred.dtype)
-        r = r.masked_scatter(valid, st[0] * p + st[1] - d)
-        residuals.append(r)
+        normalised = []
+        for x in (pred[i][valid], 1.0 / depth[i][valid]):
+            med = torch.sort(x).values[(len(x) - 1) // 2]
+            normalised.append((x - med) / (x - med).abs().mean())
+        residuals.append(r.masked_scatter(valid, normalised[0] - normalised[1]))
         masks.append(valid)
     total_valid = sum(int(m.sum()) for m in masks)
-    ssi = sum((r[m] ** 2).sum() for r, m in zip(residuals, masks)) / (2 * total_valid)
+    ssi = sum(r[m].abs().sum() for r, m in zip(residuals, masks)) / total_valid
     grad = 0.0
     for k in range(GRADIENT_SCALES):
         s = 2**k
@@ -69,7 +68,7 @@ def test_loss_and_gradient_equal_the_reference(batch):
     assert float(f32) == pytest.approx(float(slow.detach()), rel=1e-4)
 
 
-def test_loss_is_invariant_to_scale_and_shift_and_zero_at_the_truth(batch):
+def test_loss_is_invariant_to_positive_scale_and_shift_only_and_zero_at_the_truth(batch):
     pred, depth = batch
     base, _ = ssi_loss(pred, depth)
     moved, _ = ssi_loss(3.0 * pred - 7.0, depth)
@@ -77,17 +76,16 @@ def test_loss_is_invariant_to_scale_and_shift_and_zero_at_the_truth(batch):
     disparity = torch.where(torch.isfinite(depth) & (depth > 0), 1.0 / depth, torch.zeros_like(depth))
     exact, _ = ssi_loss(0.25 * disparity + 2.0, depth)
     assert float(exact) < 1e-10  # rounding only (the loss of a random prediction is ~1)
+    flipped, _ = ssi_loss(-disparity, depth)  # a depth-like output is not a disparity up to a positive scale
+    assert float(flipped) > 1.0
 
 
-def test_a_constant_prediction_gets_the_mean_and_no_nan():
-    depth = torch.linspace(1, 4, 64, dtype=torch.float64).reshape(1, 8, 8)
-    s, t = scale_and_shift(
-        torch.ones(1, 8, 8, dtype=torch.float64), 1 / depth, torch.ones(1, 8, 8, dtype=torch.float64)
-    )
-    assert float(s) == 0.0 and float(t) == pytest.approx(float((1 / depth).mean()))
-    loss, _ = ssi_loss(torch.ones(1, 8, 8, requires_grad=True), depth.float())
+def test_a_constant_prediction_or_an_all_sky_batch_gives_no_nan():
+    depth = torch.linspace(1, 4, 64).reshape(1, 8, 8)
+    pred = torch.ones(1, 8, 8, requires_grad=True)
+    loss, _ = ssi_loss(pred, depth)
     loss.backward()
-    assert torch.isfinite(loss)
+    assert torch.isfinite(loss) and torch.isfinite(pred.grad).all()
     all_sky, _ = ssi_loss(torch.ones(1, 8, 8), torch.full((1, 8, 8), float("nan")))
     assert float(all_sky) == 0.0
 
@@ -97,6 +95,7 @@ def test_metrics_after_alignment():
     assert affine_disparity_metrics(2.0 / z + 0.3, z) == pytest.approx((0.0, 1.0), abs=1e-9)
     rel, d1 = affine_disparity_metrics(np.ones_like(z), z)  # a constant: the mean disparity everywhere
     assert rel > 0.2 and d1 < 0.8
+    assert affine_disparity_metrics(-1.0 / z, z) == pytest.approx((rel, d1))  # no negative scale: the constant
     sky = z.copy()
     sky[:, :19] = np.nan  # 20 pixels of truth: too few to measure
     assert all(np.isnan(affine_disparity_metrics(1.0 / z, sky)))
