@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -229,7 +230,7 @@ def main(argv=None) -> int:
     split = {s: ("seen" if s in cfg.families else "unseen") for s in SYNTHETIC_SCENES}
     prior, prior_crops = position_prior()
     teachers = [TruthTeacher()] + [get_teacher(f"sim:{p}", 0) for p in PROFILES]
-    teachers += [get_teacher(f"onnx:{p}") for p in shipped_models()]
+    teachers += [get_teacher(f"onnx:{os.path.relpath(p)}") for p in shipped_models()]
     teachers += [ControlTeacher("constant"), ControlTeacher("position prior", prior)]
     learned = {t.name for t in teachers if t.name.startswith("onnx:")}
     layout = make_layout("fibonacci", args.views)
