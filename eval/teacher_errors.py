@@ -39,6 +39,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -149,7 +150,9 @@ def position_prior() -> tuple[np.ndarray, int]:
     depth) and the crop count, from the learned teachers' (default config's) cached training crops."""
     crops = cached_crops(DepthTrainConfig().crop_specs()["train"])
     log_z = np.log(crops.depth.astype(np.float64))
-    log_z -= np.nanmedian(log_z.reshape(len(log_z), -1), axis=1)[:, None, None]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-sky crop has no median: it is left out as NaN
+        log_z -= np.nanmedian(log_z.reshape(len(log_z), -1), axis=1)[:, None, None]
     return np.exp(np.nanmean(log_z, axis=0)).astype(np.float32), len(log_z)
 
 

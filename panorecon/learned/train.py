@@ -5,7 +5,7 @@ use the base scenes and the population suite ``@1..3``), of the training familie
 variants of the same families (``seen``) and on the held-out families (``unseen``: never in training). Each
 step draws ``batch`` crops (with a horizontal flip half the time) from ``(seed, step)``, so a resumed run is the
 same run. Adam with a cosine learning-rate decay to a tenth over ``steps``. Validation: per-crop AbsRel and
-delta1 of z-depth after the least-squares scale and shift in disparity that the output allows
+delta1 of z-depth after the least-squares scale (at least 0) and shift in disparity that the output allows
 (``loss.affine_disparity_metrics``), averaged over the crops. Float32 throughout, on the CPU.
 
 Outputs in ``out``: ``ckpt.pt`` (model, optimiser, step, history; resumed when its config matches), and at
