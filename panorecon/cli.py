@@ -47,6 +47,11 @@ COMMANDS: dict[tuple[str, ...], tuple[str, type | None, str | None]] = {
     ("inspect",): ("look at a point cloud with pyvista", K.InspectConfig, "commands:inspect_cloud"),
     ("teachers",): ("depth teachers", None, None),
     ("teachers", "list"): ("teacher specs", K.ListConfig, "commands:teachers_list"),
+    ("teachers", "train"): (
+        "train the learned depth teacher on synthetic scene variants and export it to ONNX (for onnx:)",
+        K.TeachersTrainConfig,
+        "commands:teachers_train",
+    ),
     ("sources",): ("point sources", None, None),
     ("sources", "list"): ("registered point sources", K.ListConfig, "commands:sources_list"),
     ("points",): (

@@ -147,6 +147,29 @@ def teachers_list(cfg: K.ListConfig) -> int:
     return 0
 
 
+def teachers_train(cfg: K.TeachersTrainConfig) -> int:
+    """Train (or resume) the learned teacher into cfg.out and export it (learned.train.train_teacher)."""
+    import shlex
+
+    from . import checks as C
+    from .learned.train import train_teacher
+
+    claim(cfg.out, "teachers-train", {"config": cfg.train.digest()}, K.TEACHER_TRAIN_WRITES, cfg.overwrite)
+    words = ["panorecon", "teachers", "train"]
+    for s in C.settings(type(cfg.train)):  # the options that differ from their defaults: the command that remakes it
+        value = getattr(cfg.train, s.name)
+        if value != s.default:
+            words += [f"--{s.name.replace('_', '-')}", *map(str, value if isinstance(value, tuple) else [value])]
+    r = train_teacher(cfg.train, cfg.out, shlex.join([*words, "--out", str(cfg.out)]), progress=not cfg.no_progress)
+    f = r["final"]
+    print(
+        f"{cfg.train.name}: {r['parameters']} parameters, {cfg.train.steps} steps in {r['train_seconds']:.0f} s; "
+        f"val seen AbsRel {f['seen_abs_rel']:.4f} d1 {f['seen_delta1']:.3f}, unseen AbsRel {f['unseen_abs_rel']:.4f} "
+        f"d1 {f['unseen_delta1']:.3f} -> {Path(cfg.out) / (cfg.train.name + '.onnx')}"
+    )
+    return 0
+
+
 def sources_list(cfg: K.ListConfig) -> int:
     from .sources import list_sources
 

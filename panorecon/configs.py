@@ -18,6 +18,7 @@ from . import checks as C
 from .checks import nest, opt
 from .device import DEVICE_NAME
 from .fusion import FusionOptions
+from .learned.train import DepthTrainConfig
 from .splat.trainer import TrainConfig
 from .teachers.spec import TEACHER_SPEC, TeacherSpec
 
@@ -231,6 +232,19 @@ class InspectConfig:
 @dataclass(frozen=True)
 class ListConfig:
     """A listing command without options."""
+
+
+TEACHER_TRAIN_WRITES = ("ckpt.pt", "*.pt", "*.onnx", "*.json")
+
+
+@dataclass(frozen=True)
+class TeachersTrainConfig:
+    train: DepthTrainConfig = nest(DepthTrainConfig)
+    no_progress: bool = opt(False, "no progress lines", suite=False)
+    out: str | None = _out_dir(
+        TEACHER_TRAIN_WRITES, "output folder (ckpt.pt, resumed; <name>.onnx, .json, .pt, .train.json)"
+    )
+    overwrite: bool = _overwrite()
 
 
 @dataclass(frozen=True)

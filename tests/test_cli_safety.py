@@ -36,6 +36,7 @@ BASE: dict[tuple[str, ...], tuple[list[str], dict[str, str | None]]] = {
     ("gt-cloud",): ([f"{W}/pano.png"], {"--depth": f"{W}/d.npy", "--out": f"{W}/g.ply"}),
     ("inspect",): ([f"{W}/cloud.ply"], {"--screenshot": f"{W}/s.png", "--clip-z": "1"}),
     ("teachers", "list"): ([], {}),
+    ("teachers", "train"): ([], {"--steps": "2", "--width": "4", "--out": f"{W}/tt"}),
     ("sources", "list"): ([], {}),
     ("points",): (
         [f"{W}/pano.png"],

@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import hashlib
+import json
+import os
 from pathlib import Path
 
 from ..io import PanoreconInputError
@@ -80,9 +82,35 @@ def teacher_fingerprint(spec: str | None) -> str | None:
     return f"{spec}#{h.hexdigest()[:12]}" if any(f.is_file() for f in files) else spec
 
 
+WEIGHTS = Path(__file__).parent / "weights"  # the learned teachers shipped with panorecon (`teachers train`)
+
+
+def shipped_models() -> list[Path]:
+    """The ONNX models in ``WEIGHTS`` (each with its ``.json`` config and ``.train.json`` record)."""
+    return sorted(WEIGHTS.glob("*.onnx"))
+
+
+def _shipped_row(path: Path) -> tuple[str, str]:
+    """``onnx:<path>`` (relative to the working folder when under it) and what the model is, from its record."""
+    rel = os.path.relpath(path)
+    spec = f"onnx:{path if rel.startswith('..') else rel}"
+    try:
+        r = json.loads(path.with_suffix(".train.json").read_text())
+        f = r["final"]
+        desc = (
+            f"learned (panorecon teachers train): U-Net width {r['config']['width']}, {r['parameters']:,} parameters, "
+            f"{r['config']['steps']} steps; affine disparity; val AbsRel {f['seen_abs_rel']:.3f} seen / "
+            f"{f['unseen_abs_rel']:.3f} unseen families"
+        )
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        desc = f"learned, shipped ONNX model (its record {path.with_suffix('.train.json').name} unreadable: {e})"
+    return spec, desc
+
+
 def list_teachers() -> list[tuple[str, str]]:
-    """(spec, description) of every teacher kind."""
+    """(spec, description) of every teacher kind, and the shipped learned models as ``onnx:`` specs."""
     rows = [(f"sim:{p.name}", f"simulated ({p.description})") for p in PROFILES.values()]
+    rows += [_shipped_row(p) for p in shipped_models()]
     rows += [
         ("onnx:<model.onnx>", "an ONNX monocular depth model with a <model>.json config (needs onnxruntime)"),
         ("file:<depth>[?scale=S&metric=1]", "a precomputed ERP ray-distance map (16-bit PNG x scale, or .npy metres)"),
@@ -114,5 +142,6 @@ __all__ = [
     "get_teacher",
     "list_teachers",
     "seeded_teacher",
+    "shipped_models",
     "teacher_fingerprint",
 ]
