@@ -29,7 +29,9 @@ shears each Gaussian along its ray onto the plane of the fused surface's normal 
 the given cloud's nearest points per ERP bin, their normals from central differences), which leaves what the
 centre sees (to first order) and lays the Gaussian on the surface for every other view. It is a projection, not a
 loss term: the trainer applies it every ``flatten_every`` steps and after the last, unless the cloud has no surface
-to flatten onto (``normal_coherence`` below FLAT_MIN_COHERENCE: random points).
+to flatten onto (``normal_coherence`` below FLAT_MIN_COHERENCE: random points). What the given cloud contributes
+(normals, coherence, each bin's plane basis and quaternion: ``flatten_frames``) is computed once per run; each
+flattening is one pass over the Gaussians (a C++ kernel on the CPU, torch elsewhere).
 """
 
 from __future__ import annotations
@@ -184,47 +186,80 @@ def flatten_height(points: int, res: int, fov_deg: float) -> int:
     return max(2, min(anchor_height(res, fov_deg) // 2, int(np.sqrt(points / 16))))
 
 
-def flatten_onto_surface(model, normals: np.ndarray, thickness: float = FLAT_THICKNESS) -> np.ndarray:
-    """Shear every Gaussian of ``model`` along its ray u from the centre onto the plane of the surface normal n
-    at its ERP bin of ``normals`` [H, 2H, 3] (``surface_normals``, or a true surface's ``erp_normals``), in place:
-    Σ' = A Σ Aᵀ + thickness² (tr(A Σ Aᵀ) / 2) n nᵀ with A = I - u nᵀ / (n·u). A moves points along u only, so
-    the centre's view of the Gaussian is unchanged to first order (the projection's Jacobian J has J u = 0, so
-    J A = J), while any other position sees a disc on the surface (2DGS's and PGSR's flat Gaussians) whose
-    thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite normal or covariance, or
-    whose surface the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as they are; means,
-    opacities and colours never change. A Σ Aᵀ lies in the plane (nᵀ A = 0), so its axes come in closed form from
-    the 2 x 2 matrix on a basis of the plane (no 3 x 3 eigensolver). float64 numpy inside: on a GPU the parameters
-    make one round trip to the host. -> [N] bool: the Gaussians flattened."""
-    from .model import covariances, rotmat_to_wxyz
+def flatten_frames(normals: np.ndarray, device=None) -> torch.Tensor:
+    """What flattening reads from the given cloud, once per run: [H * 2H, 13] float64 on ``device``, per ERP bin
+    of ``normals`` [H, 2H, 3] (row-major) a basis (t1, t2) of the surface's plane (t1 = n x the axis least along
+    n, normalised; t2 = n x t1), its normal n as given, and the wxyz quaternion of the rotation whose columns are
+    (t1, t2, n); NaN where the normal is not finite."""
+    from .model import rotmat_to_wxyz
 
-    means = model.means.detach().cpu().double().numpy()
-    r = np.linalg.norm(means, axis=1)
-    u = means / np.maximum(r, 1e-300)[:, None]
-    rows, cols = _erp_bins(u, normals.shape[0])
-    n = normals[rows, cols].astype(np.float64)
-    cos = np.einsum("ni,ni->n", np.nan_to_num(n), u)
-    cov = covariances(model)
-    flat = np.isfinite(n).all(1) & (np.abs(cos) >= FLAT_MIN_COS) & (r > 0) & np.isfinite(cov).all((1, 2))
-    if not flat.any():
-        return flat
-    u, n, cos = u[flat], n[flat], cos[flat]
-    A = np.eye(3) - np.einsum("ni,nj->nij", u, n) / cos[:, None, None]
-    S = A @ cov[flat] @ np.swapaxes(A, 1, 2)
-    helper = np.eye(3)[np.abs(n).argmin(1)]  # the axis least along n: a basis (t1, t2) of the plane
-    t1 = np.cross(n, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    ok = np.isfinite(n).all(1)
+    helper = np.eye(3)[np.abs(np.nan_to_num(n)).argmin(1)]  # the axis least along n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t1 = np.cross(n, helper)
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
     t2 = np.cross(n, t1)
-    m11, m22 = np.einsum("ni,nij,nj->n", t1, S, t1), np.einsum("ni,nij,nj->n", t2, S, t2)
-    m12 = np.einsum("ni,nij,nj->n", t1, S, t2)
-    theta = 0.5 * np.arctan2(2 * m12, m11 - m22)
-    mid, half = (m11 + m22) / 2, np.hypot((m11 - m22) / 2, m12)
-    e1 = np.cos(theta)[:, None] * t1 + np.sin(theta)[:, None] * t2
-    R = np.stack([e1, np.cross(n, e1), n], -1)  # columns: the disc's axes and its normal (det +1)
-    var = np.stack([mid + half, mid - half, thickness**2 * mid], 1)
-    idx = torch.from_numpy(np.flatnonzero(flat)).to(model.quats.device)
+    q = np.full((len(n), 4), np.nan)
+    q[ok] = rotmat_to_wxyz(np.stack([t1[ok], t2[ok], n[ok]], -1))
+    return torch.from_numpy(np.concatenate([t1, t2, n, q], 1)).to(device)
+
+
+def flatten_onto_surface(model, frames: torch.Tensor, thickness: float = FLAT_THICKNESS) -> torch.Tensor:
+    """Shear every Gaussian of ``model`` along its ray u from the centre onto the plane of the surface normal n
+    at its ERP bin (``frames`` from ``flatten_frames`` of ``surface_normals``, or of a true surface's
+    ``erp_normals``), in place: Σ' = A Σ Aᵀ + thickness² (tr(A Σ Aᵀ) / 2) n nᵀ with A = I - u nᵀ / (n·u). A moves
+    points along u only, so the centre's view of the Gaussian is unchanged to first order (the projection's
+    Jacobian J has J u = 0, so J A = J), while any other position sees a disc on the surface (2DGS's and PGSR's
+    flat Gaussians) whose thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite
+    normal or covariance, or whose surface the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as
+    they are; means, opacities and colours never change. On the CPU the C++ kernel (csrc/flatten_cpu.cpp), else
+    ``flatten_onto_surface_torch``; both float64 inside, on the model's device. -> [N] bool: the Gaussians
+    flattened."""
+    from .rasterize import cpu_backend
+
+    if model.means.device.type == "cpu" and cpu_backend.available():
+        return cpu_backend.flatten_surface(
+            model.means, model.quats.data, model.log_scales.data, frames, thickness, FLAT_MIN_COS
+        )
+    return flatten_onto_surface_torch(model, frames, thickness)
+
+
+def flatten_onto_surface_torch(model, frames: torch.Tensor, thickness: float = FLAT_THICKNESS) -> torch.Tensor:
+    """``flatten_onto_surface`` in torch float64 on the model's device (a GPU, or a CPU without the C++ kernel). A
+    Σ Aᵀ lies in the plane (nᵀ A = 0): its 2 x 2 matrix on the bin's basis (t1, t2) is that of the axes a_k = R_k
+    s_k seen through p_i = Aᵀ t_i = t_i - n (t_i·u) / (n·u), whose eigenvectors are (t1, t2) turned by θ about n, so
+    the disc's quaternion is the bin's times (cos θ/2, 0, 0, sin θ/2), signed as ``rotmat_to_wxyz`` signs it (its
+    largest component positive). ``flatten_onto_surface_reference`` is the per-axis loop. -> [N] bool."""
+    from .rasterize.projection import quat_to_rotmat
+
     with torch.no_grad():
-        model.quats[idx] = torch.from_numpy(rotmat_to_wxyz(R)).to(model.quats)
-        model.log_scales[idx] = torch.from_numpy(0.5 * np.log(np.maximum(var, 1e-30))).to(model.log_scales)
+        means = model.means.detach().double()
+        r = torch.linalg.vector_norm(means, dim=1)
+        u = means / r.clamp_min(1e-300)[:, None]
+        height = round((frames.shape[0] / 2) ** 0.5)
+        rows, cols = _erp_bins(u, height)
+        f = frames[rows * 2 * height + cols]  # [N, 13]
+        t, n, q0 = f[:, :6].view(-1, 2, 3), f[:, 6:9], f[:, 9:]
+        cos = (n * u).sum(1)
+        R = quat_to_rotmat(model.quats.detach().double())  # [N, 3, 3], columns the axes' directions
+        s2 = torch.exp(2 * model.log_scales.detach().double())  # [N, 3] the axes' variances
+        flat = (cos.abs() >= FLAT_MIN_COS) & (r > 0) & torch.isfinite(R).all(2).all(1) & torch.isfinite(s2).all(1)
+        p = t - ((t * u[:, None]).sum(2) / cos[:, None])[..., None] * n[:, None]  # [N, 2, 3]
+        c = torch.bmm(p, R)  # [N, 2, 3]: p_i · R_k
+        cs = c * s2[:, None]
+        m11, m22, m12 = (cs[:, 0] * c[:, 0]).sum(1), (cs[:, 1] * c[:, 1]).sum(1), (cs[:, 0] * c[:, 1]).sum(1)
+        half_theta = 0.25 * torch.atan2(2 * m12, m11 - m22)
+        mid, half = (m11 + m22) / 2, torch.hypot((m11 - m22) / 2, m12)
+        ch, sh = torch.cos(half_theta), torch.sin(half_theta)
+        w0, x0, y0, z0 = q0.unbind(1)
+        q = torch.stack([w0 * ch - z0 * sh, x0 * ch + y0 * sh, y0 * ch - x0 * sh, z0 * ch + w0 * sh], 1)
+        q = q / torch.linalg.vector_norm(q, dim=1, keepdim=True)
+        q = q * torch.where(q.gather(1, q.square().argmax(1, keepdim=True)) < 0, -1.0, 1.0)
+        var = torch.stack([mid + half, mid - half, thickness**2 * mid], 1)
+        model.quats.copy_(torch.where(flat[:, None], q.to(model.quats), model.quats))
+        ls = (0.5 * torch.log(var.clamp_min(1e-30))).to(model.log_scales)
+        model.log_scales.copy_(torch.where(flat[:, None], ls, model.log_scales))
     return flat
 
 
