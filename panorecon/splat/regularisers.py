@@ -187,22 +187,15 @@ def flatten_height(points: int, res: int, fov_deg: float) -> int:
 
 
 def flatten_frames(normals: np.ndarray, device=None) -> torch.Tensor:
-    """What flattening reads from the given cloud, once per run: [H * 2H, 13] float64 on ``device``, per ERP bin
+    """What flattening reads from the given cloud, once per run: [H * 2H, 9] float64 on ``device``, per ERP bin
     of ``normals`` [H, 2H, 3] (row-major) a basis (t1, t2) of the surface's plane (t1 = n x the axis least along
-    n, normalised; t2 = n x t1), its normal n as given, and the wxyz quaternion of the rotation whose columns are
-    (t1, t2, n); NaN where the normal is not finite."""
-    from .model import rotmat_to_wxyz
-
+    n, normalised; t2 = n x t1) and its normal n as given; NaN where the normal is not finite."""
     n = np.asarray(normals, np.float64).reshape(-1, 3)
-    ok = np.isfinite(n).all(1)
     helper = np.eye(3)[np.abs(np.nan_to_num(n)).argmin(1)]  # the axis least along n
     with np.errstate(invalid="ignore", divide="ignore"):
         t1 = np.cross(n, helper)
         t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
-    q = np.full((len(n), 4), np.nan)
-    q[ok] = rotmat_to_wxyz(np.stack([t1[ok], t2[ok], n[ok]], -1))
-    return torch.from_numpy(np.concatenate([t1, t2, n, q], 1)).to(device)
+    return torch.from_numpy(np.concatenate([t1, np.cross(n, t1), n], 1)).to(device)
 
 
 def flatten_onto_surface(model, frames: torch.Tensor, thickness: float = FLAT_THICKNESS) -> torch.Tensor:
@@ -228,9 +221,9 @@ def flatten_onto_surface(model, frames: torch.Tensor, thickness: float = FLAT_TH
 def flatten_onto_surface_torch(model, frames: torch.Tensor, thickness: float = FLAT_THICKNESS) -> torch.Tensor:
     """``flatten_onto_surface`` in torch float64 on the model's device (a GPU, or a CPU without the C++ kernel). A
     Σ Aᵀ lies in the plane (nᵀ A = 0): its 2 x 2 matrix on the bin's basis (t1, t2) is that of the axes a_k = R_k
-    s_k seen through p_i = Aᵀ t_i = t_i - n (t_i·u) / (n·u), whose eigenvectors are (t1, t2) turned by θ about n, so
-    the disc's quaternion is the bin's times (cos θ/2, 0, 0, sin θ/2), signed as ``rotmat_to_wxyz`` signs it (its
-    largest component positive). ``flatten_onto_surface_reference`` is the per-axis loop. -> [N] bool."""
+    s_k seen through p_i = Aᵀ t_i = t_i - n (t_i·u) / (n·u); the disc's axes are its eigenvectors in closed form
+    (no 3 x 3 eigensolver), with n, and their quaternion Shepperd's (``rotmat_to_wxyz``).
+    ``flatten_onto_surface_reference`` is the per-axis loop. -> [N] bool."""
     from .rasterize.projection import quat_to_rotmat
 
     with torch.no_grad():
@@ -239,8 +232,8 @@ def flatten_onto_surface_torch(model, frames: torch.Tensor, thickness: float = F
         u = means / r.clamp_min(1e-300)[:, None]
         height = round((frames.shape[0] / 2) ** 0.5)
         rows, cols = _erp_bins(u, height)
-        f = frames[rows * 2 * height + cols]  # [N, 13]
-        t, n, q0 = f[:, :6].view(-1, 2, 3), f[:, 6:9], f[:, 9:]
+        f = frames[rows * 2 * height + cols]  # [N, 9]
+        t, n = f[:, :6].view(-1, 2, 3), f[:, 6:]
         cos = (n * u).sum(1)
         R = quat_to_rotmat(model.quats.detach().double())  # [N, 3, 3], columns the axes' directions
         s2 = torch.exp(2 * model.log_scales.detach().double())  # [N, 3] the axes' variances
@@ -249,18 +242,35 @@ def flatten_onto_surface_torch(model, frames: torch.Tensor, thickness: float = F
         c = torch.bmm(p, R)  # [N, 2, 3]: p_i · R_k
         cs = c * s2[:, None]
         m11, m22, m12 = (cs[:, 0] * c[:, 0]).sum(1), (cs[:, 1] * c[:, 1]).sum(1), (cs[:, 0] * c[:, 1]).sum(1)
-        half_theta = 0.25 * torch.atan2(2 * m12, m11 - m22)
+        theta = 0.5 * torch.atan2(2 * m12, m11 - m22)
         mid, half = (m11 + m22) / 2, torch.hypot((m11 - m22) / 2, m12)
-        ch, sh = torch.cos(half_theta), torch.sin(half_theta)
-        w0, x0, y0, z0 = q0.unbind(1)
-        q = torch.stack([w0 * ch - z0 * sh, x0 * ch + y0 * sh, y0 * ch - x0 * sh, z0 * ch + w0 * sh], 1)
-        q = q / torch.linalg.vector_norm(q, dim=1, keepdim=True)
-        q = q * torch.where(q.gather(1, q.square().argmax(1, keepdim=True)) < 0, -1.0, 1.0)
+        e1 = torch.cos(theta)[:, None] * t[:, 0] + torch.sin(theta)[:, None] * t[:, 1]
+        q = _rotmat_to_wxyz(torch.stack([e1, torch.linalg.cross(n, e1), n], -1))
         var = torch.stack([mid + half, mid - half, thickness**2 * mid], 1)
         model.quats.copy_(torch.where(flat[:, None], q.to(model.quats), model.quats))
         ls = (0.5 * torch.log(var.clamp_min(1e-30))).to(model.log_scales)
         model.log_scales.copy_(torch.where(flat[:, None], ls, model.log_scales))
     return flat
+
+
+def _rotmat_to_wxyz(R: torch.Tensor) -> torch.Tensor:
+    """``model.rotmat_to_wxyz`` in torch: [N, 3, 3] -> unit wxyz quaternions [N, 4] (Shepperd's method)."""
+    d0, d1, d2 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    big = torch.stack([1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2], 1)
+    k = big.argmax(1, keepdim=True)
+    s = 2 * torch.sqrt(big.gather(1, k)[:, 0].clamp_min(1e-300))  # 4 x the largest component
+    zy, yz, xz, zx, yx, xy = R[:, 2, 1], R[:, 1, 2], R[:, 0, 2], R[:, 2, 0], R[:, 1, 0], R[:, 0, 1]
+    cands = torch.stack(
+        [
+            torch.stack([s / 4, (zy - yz) / s, (xz - zx) / s, (yx - xy) / s], 1),
+            torch.stack([(zy - yz) / s, s / 4, (xy + yx) / s, (xz + zx) / s], 1),
+            torch.stack([(xz - zx) / s, (xy + yx) / s, s / 4, (yz + zy) / s], 1),
+            torch.stack([(yx - xy) / s, (xz + zx) / s, (yz + zy) / s, s / 4], 1),
+        ],
+        1,
+    )
+    q = cands.gather(1, k[:, :, None].expand(-1, 1, 4))[:, 0]
+    return q / torch.linalg.vector_norm(q, dim=1, keepdim=True)
 
 
 def flatten_onto_surface_reference(means, quats, log_scales, normals, thickness: float = FLAT_THICKNESS):

@@ -324,7 +324,7 @@ def accumulate_screen_grads(grad_sum, count, g_means2d, radii, width: int, heigh
 
 def flatten_surface(means, quats, log_scales, frames, thickness: float, min_cos: float) -> torch.Tensor:
     """``regularisers.flatten_onto_surface_torch`` in C++, in place: quats [N, 4] and log_scales [N, 3] (float32, a
-    model's parameters' data) of the Gaussians at means [N, 3] flattened onto ``frames`` [2 H^2, 13] float64
+    model's parameters' data) of the Gaussians at means [N, 3] flattened onto ``frames`` [2 H^2, 9] float64
     (``regularisers.flatten_frames``) -> [N] bool, the Gaussians flattened."""
     if not quats.dtype == log_scales.dtype == torch.float32:
         raise ValueError("flatten_surface: quats and log_scales must be float32 tensors")

@@ -1,8 +1,9 @@
 // Flattening onto the given cloud's surface (splat/regularisers.py flatten_onto_surface) on the CPU: each Gaussian
 // in float64 registers, in one pass, the formula of regularisers.flatten_onto_surface_torch step for step (its bin
 // from its ray, the 2 x 2 matrix of its sheared covariance on the bin's basis, the matrix's angle and eigenvalues,
-// the bin's quaternion turned by that angle and signed as model.rotmat_to_wxyz signs it). The torch formula makes
-// some 150 passes over [N] float64 arrays (1.3-6 s at 524k Gaussians on a shared 2-core machine, 2026-11-28).
+// the disc's rotation and its quaternion by Shepperd's method). The torch formula makes some 200 passes over [N]
+// float64 arrays: 1.6 s against this kernel's 0.14 s at 524k Gaussians, main's numpy 1.5 s (two threads on a shared
+// 2-core machine, load 4-8, 2026-11-28).
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 #include <cmath>
@@ -25,7 +26,7 @@ void flatten(const float* __restrict means, float* __restrict quats, float* __re
       const double row = (0.5 - lat / PI) * H - 0.5, col = (lon / (2 * PI) + 0.5) * W - 0.5;
       const int64_t ri = std::min<int64_t>(std::max<int64_t>((int64_t)std::nearbyint(row), 0), H - 1);
       const int64_t ci = (((int64_t)std::nearbyint(col) % W) + W) % W;
-      const double* f = frames + (ri * W + ci) * 13;  // t1, t2, n, the bin's quaternion (wxyz)
+      const double* f = frames + (ri * W + ci) * 9;  // t1, t2, n
       const double* n = f + 6;
       const double cos = n[0] * u[0] + n[1] * u[1] + n[2] * u[2];
       if (!(std::abs(cos) >= min_cos)) continue;  // grazing, or a bin without a normal (NaN)
@@ -62,18 +63,34 @@ void flatten(const float* __restrict means, float* __restrict quats, float* __re
         m22 += c[1][k] * s2[k] * c[1][k];
         m12 += c[0][k] * s2[k] * c[1][k];
       }
-      const double half_theta = 0.25 * std::atan2(2 * m12, m11 - m22);
+      // the disc's axes e1 (the 2 x 2 matrix's major eigenvector), n x e1 and n, and their quaternion by
+      // Shepperd's method, as model.rotmat_to_wxyz (n as given: float32 normals are unit to ~6e-8)
+      const double theta = 0.5 * std::atan2(2 * m12, m11 - m22);
       const double mid = (m11 + m22) / 2, half = std::hypot((m11 - m22) / 2, m12);
-      const double ch = std::cos(half_theta), sh = std::sin(half_theta);
-      const double* q0 = f + 9;
-      double q[4] = {q0[0] * ch - q0[3] * sh, q0[1] * ch + q0[2] * sh, q0[2] * ch - q0[1] * sh,
-                     q0[3] * ch + q0[0] * sh};
+      const double ct = std::cos(theta), st = std::sin(theta);
+      const double* t1 = f;
+      const double* t2 = f + 3;
+      const double e1[3] = {ct * t1[0] + st * t2[0], ct * t1[1] + st * t2[1], ct * t1[2] + st * t2[2]};
+      const double e2[3] = {n[1] * e1[2] - n[2] * e1[1], n[2] * e1[0] - n[0] * e1[2], n[0] * e1[1] - n[1] * e1[0]};
+      const double d0 = e1[0], d1 = e2[1], d2 = n[2];  // the diagonal of [e1 e2 n]
+      const double big[4] = {1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2};
+      int k = 0;
+      for (int j = 1; j < 4; ++j)
+        if (big[j] > big[k]) k = j;
+      const double s = 2 * std::sqrt(std::max(big[k], 1e-300));  // 4 x the largest component
+      const double zy = e2[2], yz = n[1], xz = n[0], zx = e1[2], yx = e1[1], xy = e2[0];
+      double q[4];
+      if (k == 0) {
+        q[0] = s / 4, q[1] = (zy - yz) / s, q[2] = (xz - zx) / s, q[3] = (yx - xy) / s;
+      } else if (k == 1) {
+        q[0] = (zy - yz) / s, q[1] = s / 4, q[2] = (xy + yx) / s, q[3] = (xz + zx) / s;
+      } else if (k == 2) {
+        q[0] = (xz - zx) / s, q[1] = (xy + yx) / s, q[2] = s / 4, q[3] = (yz + zy) / s;
+      } else {
+        q[0] = (yx - xy) / s, q[1] = (xz + zx) / s, q[2] = (yz + zy) / s, q[3] = s / 4;
+      }
       const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-      int big = 0;  // the largest component positive (the first of equal ones), as rotmat_to_wxyz
-      for (int k = 1; k < 4; ++k)
-        if (q[k] * q[k] > q[big] * q[big]) big = k;
-      const double sign = q[big] < 0 ? -1.0 : 1.0;
-      for (int k = 0; k < 4; ++k) quats[4 * g + k] = (float)(sign * q[k] / norm);
+      for (int j = 0; j < 4; ++j) quats[4 * g + j] = (float)(q[j] / norm);
       const double var[3] = {mid + half, mid - half, thickness * thickness * mid};
       for (int k = 0; k < 3; ++k) log_scales[3 * g + k] = (float)(0.5 * std::log(std::max(var[k], 1e-30)));
       flat[g] = true;
@@ -83,7 +100,7 @@ void flatten(const float* __restrict means, float* __restrict quats, float* __re
 }  // namespace
 
 // means [N, 3], quats [N, 4] wxyz and log_scales [N, 3] float32 contiguous (the last two updated in place); frames
-// [H * 2H, 13] float64 contiguous (regularisers.flatten_frames) -> [N] bool, the Gaussians flattened.
+// [H * 2H, 9] float64 contiguous (regularisers.flatten_frames) -> [N] bool, the Gaussians flattened.
 torch::Tensor flatten_surface(torch::Tensor means, torch::Tensor quats, torch::Tensor log_scales, torch::Tensor frames,
                               int64_t height, double thickness, double min_cos) {
   const int64_t N = means.size(0);
@@ -94,8 +111,8 @@ torch::Tensor flatten_surface(torch::Tensor means, torch::Tensor quats, torch::T
               "flatten_surface: float32 means, quats and log_scales and float64 frames expected");
   TORCH_CHECK(means.dim() == 2 && means.size(1) == 3 && quats.sizes() == torch::IntArrayRef({N, 4}) &&
                   log_scales.sizes() == torch::IntArrayRef({N, 3}) &&
-                  frames.sizes() == torch::IntArrayRef({2 * height * height, 13}),
-              "flatten_surface: means [N, 3], quats [N, 4], log_scales [N, 3] and frames [2 H^2, 13] expected");
+                  frames.sizes() == torch::IntArrayRef({2 * height * height, 9}),
+              "flatten_surface: means [N, 3], quats [N, 4], log_scales [N, 3] and frames [2 H^2, 9] expected");
   auto flat = torch::zeros({N}, means.options().dtype(torch::kBool));
   flatten(means.data_ptr<float>(), quats.data_ptr<float>(), log_scales.data_ptr<float>(), flat.data_ptr<bool>(),
           frames.data_ptr<double>(), N, height, thickness, min_cos);
