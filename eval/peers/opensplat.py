@@ -309,6 +309,7 @@ def main(argv=None) -> dict:
         "config": "same input: the exported cloud as is (no fill, no thinning), no sky, no depth term",
         "seconds_per_step": m["seconds"]["train"] / args.iters,
         "train_s": m["seconds"]["train"],
+        "flatten_s": m["seconds"]["flatten"],  # within train_s
         "gaussians": m["gaussians"],
         "pseudo-label": m["pseudo-label"],
         "held-out": m["held-out"],

@@ -30,7 +30,7 @@ the given cloud's nearest points per ERP bin, their normals from central differe
 centre sees (to first order) and lays the Gaussian on the surface for every other view. It is a projection, not a
 loss term: the trainer applies it every ``flatten_every`` steps and after the last, unless the cloud has no surface
 to flatten onto (``normal_coherence`` below FLAT_MIN_COHERENCE: random points). What the given cloud contributes
-(normals, coherence, each bin's plane basis and quaternion: ``flatten_frames``) is computed once per run; each
+(normals, coherence, each bin's plane basis: ``flatten_frames``) is computed once per run; each
 flattening is one pass over the Gaussians (a C++ kernel on the CPU, torch elsewhere).
 """
 
@@ -206,7 +206,8 @@ def flatten_onto_surface(model, frames: torch.Tensor, thickness: float = FLAT_TH
     Jacobian J has J u = 0, so J A = J), while any other position sees a disc on the surface (2DGS's and PGSR's
     flat Gaussians) whose thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite
     normal or covariance, or whose surface the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as
-    they are; means, opacities and colours never change. On the CPU the C++ kernel (csrc/flatten_cpu.cpp), else
+    they are, as are those whose sheared variances pass float64's range; means, opacities and colours never change.
+    On the CPU the C++ kernel (csrc/flatten_cpu.cpp), else
     ``flatten_onto_surface_torch``; both float64 inside, on the model's device. -> [N] bool: the Gaussians
     flattened."""
     from .rasterize import cpu_backend
@@ -247,6 +248,7 @@ def flatten_onto_surface_torch(model, frames: torch.Tensor, thickness: float = F
         e1 = torch.cos(theta)[:, None] * t[:, 0] + torch.sin(theta)[:, None] * t[:, 1]
         q = _rotmat_to_wxyz(torch.stack([e1, torch.linalg.cross(n, e1), n], -1))
         var = torch.stack([mid + half, mid - half, thickness**2 * mid], 1)
+        flat &= torch.isfinite(theta) & torch.isfinite(var).all(1)  # variances past float64's range: left as they are
         model.quats.copy_(torch.where(flat[:, None], q.to(model.quats), model.quats))
         ls = (0.5 * torch.log(var.clamp_min(1e-30))).to(model.log_scales)
         model.log_scales.copy_(torch.where(flat[:, None], ls, model.log_scales))

@@ -121,6 +121,7 @@ def test_fake_opensplat_on_both_formats_is_scored_beside_panorecon(tmp_path):
     assert res["status"] == "ok" and "--save-every" in argv and argv[argv.index("--save-every") + 1] == "1"
     pan = res["panorecon"]
     assert pan["gaussians"] > 0 and isinstance(pan["held-out"]["psnr"], float) and pan["seconds_per_step"] > 0
+    assert 0 <= pan["flatten_s"] < pan["train_s"]
     assert len(pan["heldout_curve"]) == 3 and pan["heldout_curve"][-1][1] == pytest.approx(pan["held-out"]["psnr"])
     assert json.loads((tmp_path / "out" / "result.json").read_text())["scene"] == "bedroom"
 

@@ -312,7 +312,8 @@ def test_flatten_leaves_a_gaussian_without_a_finite_covariance_as_it_is(kernel):
 @pytest.mark.skipif(not cpu_backend.available(), reason="the C++ cpu backend could not be built here")
 def test_the_flatten_kernel_is_the_torch_formula_to_a_float32_rounding():
     """csrc/flatten_cpu.cpp against flatten_onto_surface_torch on 20,000 Gaussians of the box, among them a zero and
-    a NaN quaternion, infinite, NaN and huge scales, a Gaussian at the centre and one with a NaN mean: the same
+    a NaN quaternion, infinite, NaN and huge scales (one whose variances are finite and whose sheared ones are not),
+    a Gaussian at the centre and one with a NaN mean: the same
     Gaussians flattened, the same parameters to a float32 rounding (both float64 inside; libm's and torch's
     transcendentals may round differently), the others untouched."""
     pts = _box(1.0)
@@ -320,11 +321,12 @@ def test_the_flatten_kernel_is_the_torch_formula_to_a_float32_rounding():
     normals[:, :6] = np.nan
     frames = flatten_frames(normals)
     a, b = _gaussians_on(pts, 20_000), _gaussians_on(pts, 20_000)
-    e = torch.nonzero(flatten_onto_surface_torch(b, frames)).flatten()[:7]  # Gaussians that flatten, to edit
+    e = torch.nonzero(flatten_onto_surface_torch(b, frames)).flatten()[:8]  # Gaussians that flatten, to edit
     with torch.no_grad():
         a.quats[e[0]], a.quats[e[1], 0] = 0.0, float("nan")
         a.log_scales[e[2], 0], a.log_scales[e[3], 1], a.log_scales[e[4], 2] = float("inf"), float("nan"), 400.0
         a.means[e[5]], a.means[e[6], 0] = 0.0, float("nan")
+        a.log_scales[e[7]] = 354.8  # s^2 = 1.5e308: finite, but the sheared variances' sum is not
     b.load_state_dict(a.state_dict())
     before = a.quats.detach().clone(), a.log_scales.detach().clone()
     fa = cpu_backend.flatten_surface(a.means, a.quats.data, a.log_scales.data, frames, 0.05, FLAT_MIN_COS)

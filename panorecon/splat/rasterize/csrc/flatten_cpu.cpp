@@ -67,6 +67,9 @@ void flatten(const float* __restrict means, float* __restrict quats, float* __re
       // Shepperd's method, as model.rotmat_to_wxyz (n as given: float32 normals are unit to ~6e-8)
       const double theta = 0.5 * std::atan2(2 * m12, m11 - m22);
       const double mid = (m11 + m22) / 2, half = std::hypot((m11 - m22) / 2, m12);
+      const double var[3] = {mid + half, mid - half, thickness * thickness * mid};
+      if (!(std::isfinite(theta) && std::isfinite(var[0]) && std::isfinite(var[1]) && std::isfinite(var[2])))
+        continue;  // variances past float64's range: left as it is
       const double ct = std::cos(theta), st = std::sin(theta);
       const double* t1 = f;
       const double* t2 = f + 3;
@@ -91,7 +94,6 @@ void flatten(const float* __restrict means, float* __restrict quats, float* __re
       }
       const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
       for (int j = 0; j < 4; ++j) quats[4 * g + j] = (float)(q[j] / norm);
-      const double var[3] = {mid + half, mid - half, thickness * thickness * mid};
       for (int k = 0; k < 3; ++k) log_scales[3 * g + k] = (float)(0.5 * std::log(std::max(var[k], 1e-30)));
       flat[g] = true;
     }
