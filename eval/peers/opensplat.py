@@ -159,16 +159,17 @@ def heldout_psnr_of_ply(ply: Path, heldout, res: int, fov_deg: float, background
     return _heldout_psnr(load_ply(ply), views, TrainConfig(res=res, fov_deg=fov_deg, backend="cpu"), "cpu")
 
 
-def opensplat_curve(run: dict, export_dir: Path, heldout, res: int, fov_deg: float, iters: int) -> list:
-    """OpenSplat's held-out curve [(training seconds, PSNR dB)]: each ``opensplat_STEP.ply`` its ``--save-every``
-    wrote before the last step (scored, then deleted: 150 MB each at 600k Gaussians), then the final PLY's score
-    at the last step's seconds."""
+def opensplat_curve(run: dict, export_dir: Path, heldout, res: int, fov_deg: float, iters: int, every: int) -> list:
+    """OpenSplat's held-out curve [(training seconds, PSNR dB)]: each ``opensplat_STEP.ply`` its ``--save-every
+    every`` wrote before the last step and whose step has a clock reading (a "Step N:" line), scored, then the
+    final PLY's score at the last step's seconds. Every such PLY is deleted after (150 MB each at 600k Gaussians;
+    the last step's is the final PLY's twin)."""
     curve = []
-    for step in sorted(s for s in run["clock"] if s < iters):
+    for step in range(every, iters + 1, every):
         ply = export_dir / f"opensplat_{step}.ply"
-        if ply.is_file():
+        if step < iters and step in run["clock"] and ply.is_file():
             curve.append((run["clock"][step], heldout_psnr_of_ply(ply, heldout, res, fov_deg, OPENSPLAT_BACKGROUND)))
-            ply.unlink()
+        ply.unlink(missing_ok=True)
     final = run.get("held-out")
     if isinstance(final, dict) and iters in run["clock"]:
         curve.append((run["clock"][iters], final["psnr"]))
@@ -281,7 +282,7 @@ def main(argv=None) -> dict:
             run["error"] = f"n/a: OpenSplat exited {run['returncode']} (log: {out / f'opensplat_{fmt}.log'})"
         run["status"] = run_status(run)
         if curve_every and run["status"] == "ok":
-            run["heldout_curve"] = opensplat_curve(run, d, heldout, args.res, args.fov, args.iters)
+            run["heldout_curve"] = opensplat_curve(run, d, heldout, args.res, args.fov, args.iters, curve_every)
         result["opensplat_runs"][fmt] = run
     failed = {fmt: run["status"] for fmt, run in result["opensplat_runs"].items() if run["status"] != "ok"}
     result["status"] = (
