@@ -4,8 +4,14 @@ cameras and the held-out cameras. Prints JSON (machine, versions, commits, load 
 step, PSNR/SSIM/LPIPS, Gaussians, and the ratio of OpenSplat's seconds per step to panorecon's). A run that fails
 (non-zero exit, no PLY, any non-finite mean) is "status": "failed: ..." with the count, and the script exits 1.
 
+Time to quality: both trainers' held-out PSNR against training seconds every ``--curve-every`` steps (OpenSplat's
+``--save-every`` PLYs, scored after its run; panorecon's history), and the seconds each takes to reach OpenSplat's
+final held-out PSNR and panorecon's (``time_to_reach``), beside the per-step ratio. OpenSplat's clock
+(``training_clock``) starts at its first step and leaves out the PLY saves.
+
     python eval/peers/opensplat.py --opensplat /path/to/opensplat OUT [--scene bedroom] [--iters 300]
     python eval/peers/opensplat.py --opensplat build/opensplat out/beach --scene beach --formats colmap nerfstudio
+    python eval/peers/opensplat.py --opensplat build/opensplat out/bedroom --curve-every 0   # no curves
 
 OpenSplat is optional and never a dependency: pass the path of a binary built with its own instructions
 (``-DGPU_RUNTIME=CPU``; docs/benchmarks.md). It runs unpatched with the command ``export`` prints for it plus
@@ -52,10 +58,45 @@ def seconds_per_step(step_times: list[tuple[int, float]]) -> float:
     return float(np.median(d)) if d else float("nan")
 
 
-def run_opensplat(binary: str, command: str, iters: int, log_path: Path) -> dict:
-    """Run the export's OpenSplat ``command`` with ``binary`` for ``iters`` steps at full resolution; time each
-    step from its "Step N:" lines -> {seconds_per_step, wall_s, returncode, argv}."""
+def training_clock(step_times: list[tuple[int, float]], save_steps=()) -> dict[int, float]:
+    """Training seconds at each "Step N" line [(step, wall time)] of a run that wrote a PLY after each step in
+    ``save_steps`` (OpenSplat saves after the step's line): the median step (``seconds_per_step``) per step up to
+    the first line, then the wall time between lines, an interval that holds a save counted as the median step
+    per step -> {step: seconds} (NaN with fewer than two lines)."""
+    if not step_times:
+        return {}
+    med = seconds_per_step(step_times)
+    clock = {step_times[0][0]: med * step_times[0][0]}
+    total = clock[step_times[0][0]]
+    for (s0, t0), (s1, t1) in zip(step_times, step_times[1:]):
+        total += med * (s1 - s0) if s0 in save_steps else t1 - t0
+        clock[s1] = total
+    return clock
+
+
+def time_to_reach(curve: list[tuple[float, float]], target: float) -> float | None:
+    """Seconds at which a held-out curve [(seconds, PSNR dB)] in time order first reaches ``target`` dB: linear
+    between the last sample below it and the first at or above it (that sample's seconds when it is the first);
+    non-finite samples are skipped. None when the curve never reaches it or the target is not finite."""
+    if not math.isfinite(target):
+        return None
+    prev = None
+    for sec, p in curve:
+        if not math.isfinite(p):
+            continue
+        if p >= target:
+            return sec if prev is None else prev[0] + (sec - prev[0]) * (target - prev[1]) / (p - prev[1])
+        prev = (sec, p)
+    return None
+
+
+def run_opensplat(binary: str, command: str, iters: int, log_path: Path, save_every: int = 0) -> dict:
+    """Run the export's OpenSplat ``command`` with ``binary`` for ``iters`` steps at full resolution (a PLY every
+    ``save_every`` steps: ``--save-every``); time each step from its "Step N:" lines -> {seconds_per_step, wall_s,
+    returncode, argv, clock (``training_clock``: {step: training seconds})}."""
     argv = [binary, *shlex.split(command)[1:], "-n", str(iters), "--num-downscales", "0"]
+    if save_every:
+        argv += ["--save-every", str(save_every)]
     steps, t0 = [], time.perf_counter()
     with (
         open(log_path, "w") as log,
@@ -72,6 +113,7 @@ def run_opensplat(binary: str, command: str, iters: int, log_path: Path) -> dict
         "wall_s": time.perf_counter() - t0,
         "steps_seen": len(steps),
         "seconds_per_step": seconds_per_step(steps),
+        "clock": training_clock(steps, range(save_every, iters, save_every) if save_every else ()),
     }
 
 
@@ -99,6 +141,61 @@ def score_ply(ply: Path, labels, heldout, res: int, fov_deg: float, background) 
         "pseudo-label": _evaluate(model, views["l"], cfg, "cpu"),
         "held-out": _evaluate(model, views["h"], cfg, "cpu") if heldout else "n/a: scene has no ground-truth world",
     }
+
+
+def heldout_psnr_of_ply(ply: Path, heldout, res: int, fov_deg: float, background) -> float:
+    """Mean held-out PSNR (dB) of a 3DGS PLY rendered over a constant ``background``, the history's cheap sample
+    (``evaluate._heldout_psnr``: no SSIM, no LPIPS)."""
+    import dataclasses
+
+    import numpy as np
+
+    from panorecon.splat.evaluate import _heldout_psnr
+    from panorecon.splat.ply import load_ply
+    from panorecon.splat.trainer import TrainConfig
+
+    bg = np.broadcast_to(np.asarray(background, np.float32), (res, res, 3)).copy()
+    views = [dataclasses.replace(v, background=bg) for v in heldout]
+    return _heldout_psnr(load_ply(ply), views, TrainConfig(res=res, fov_deg=fov_deg, backend="cpu"), "cpu")
+
+
+def opensplat_curve(run: dict, export_dir: Path, heldout, res: int, fov_deg: float, iters: int, every: int) -> list:
+    """OpenSplat's held-out curve [(training seconds, PSNR dB)]: each ``opensplat_STEP.ply`` its ``--save-every
+    every`` wrote before the last step and whose step has a clock reading (a "Step N:" line), scored, then the
+    final PLY's score at the last step's seconds. Every such PLY is deleted after (150 MB each at 600k Gaussians;
+    the last step's is the final PLY's twin)."""
+    curve = []
+    for step in range(every, iters + 1, every):
+        ply = export_dir / f"opensplat_{step}.ply"
+        if step < iters and step in run["clock"] and ply.is_file():
+            curve.append((run["clock"][step], heldout_psnr_of_ply(ply, heldout, res, fov_deg, OPENSPLAT_BACKGROUND)))
+        ply.unlink(missing_ok=True)
+    final = run.get("held-out")
+    if isinstance(final, dict) and iters in run["clock"]:
+        curve.append((run["clock"][iters], final["psnr"]))
+    return curve
+
+
+def time_to_quality(result: dict) -> None:
+    """Adds, in place, each trainer's seconds to reach OpenSplat's final held-out PSNR (per format) and
+    panorecon's, from the curves: ``seconds_to[target]`` on each run and on panorecon, and on each OpenSplat run
+    ``time_to_its_final_vs_panorecon`` (OpenSplat's seconds to its own final PSNR over panorecon's to the same)."""
+    pan = result["panorecon"]
+    targets = {"panorecon": pan["held-out"]["psnr"] if isinstance(pan["held-out"], dict) else float("nan")}
+    for fmt, run in result["opensplat_runs"].items():
+        if run["status"] == "ok" and run.get("heldout_curve"):
+            targets[f"opensplat_{fmt}"] = run["held-out"]["psnr"]
+    result["time_to_quality_targets"] = targets
+    for run in (pan, *result["opensplat_runs"].values()):
+        if run.get("heldout_curve"):
+            run["seconds_to"] = {t: time_to_reach(run["heldout_curve"], dB) for t, dB in targets.items()}
+    for fmt, run in result["opensplat_runs"].items():
+        mine, theirs = (
+            run.get("seconds_to", {}).get(f"opensplat_{fmt}"),
+            pan.get("seconds_to", {}).get(f"opensplat_{fmt}"),
+        )
+        if mine is not None and theirs:
+            run["time_to_its_final_vs_panorecon"] = mine / theirs
 
 
 def run_status(run: dict) -> str:
@@ -134,6 +231,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--fov", type=float, default=60.0)
     ap.add_argument("--heldout", type=int, default=8)
+    ap.add_argument(
+        "--curve-every", type=int, default=50, help="steps between held-out curve samples (0: none; needs held-out)"
+    )
     args = ap.parse_args(argv)
     binary = str(Path(args.opensplat).resolve())
     if not Path(binary).is_file():
@@ -150,6 +250,7 @@ def main(argv=None) -> dict:
             in_cloud_frame(v, cloud_scale(report))
             for v in make_heldout_views(scene, args.heldout, args.res, args.fov, seed=0)
         ]
+    curve_every = args.curve_every if heldout else 0
     result = {
         **environment(),
         "opensplat": opensplat_version(binary),
@@ -161,6 +262,7 @@ def main(argv=None) -> dict:
         "labels": args.labels,
         "res": args.res,
         "torch_threads": torch.get_num_threads(),
+        "curve_every": curve_every,
         "opensplat_runs": {},
     }
     about = {"scene": scene.name, "source": args.source, "teacher": report.get("teacher")}
@@ -168,7 +270,9 @@ def main(argv=None) -> dict:
         d = export_scene(scene, cloud, args.labels, fmt, out / fmt, args.res, args.fov, overwrite=True, about=about)
         meta = json.loads((d / "export.json").read_text())
         load = load_average()
-        run = run_opensplat(binary, meta["commands"]["opensplat"], args.iters, out / f"opensplat_{fmt}.log")
+        run = run_opensplat(
+            binary, meta["commands"]["opensplat"], args.iters, out / f"opensplat_{fmt}.log", curve_every
+        )
         run["load_before"], run["load_after"] = load, load_average()
         run["export_scale"] = meta["consumer_scales"]["opensplat"]
         ply = d / "opensplat.ply"
@@ -177,6 +281,8 @@ def main(argv=None) -> dict:
         else:
             run["error"] = f"n/a: OpenSplat exited {run['returncode']} (log: {out / f'opensplat_{fmt}.log'})"
         run["status"] = run_status(run)
+        if curve_every and run["status"] == "ok":
+            run["heldout_curve"] = opensplat_curve(run, d, heldout, args.res, args.fov, args.iters, curve_every)
         result["opensplat_runs"][fmt] = run
     failed = {fmt: run["status"] for fmt, run in result["opensplat_runs"].items() if run["status"] != "ok"}
     result["status"] = (
@@ -190,7 +296,7 @@ def main(argv=None) -> dict:
         fov_deg=args.fov,
         backend="cpu",
         heldout=args.heldout,
-        history_every=0,
+        history_every=curve_every,
         sky="none",
         disocclusion_fill_deg=0.0,
         init_pixels_per_point=0.0,
@@ -204,12 +310,18 @@ def main(argv=None) -> dict:
         "config": "same input: the exported cloud as is (no fill, no thinning), no sky, no depth term",
         "seconds_per_step": m["seconds"]["train"] / args.iters,
         "train_s": m["seconds"]["train"],
+        "flatten_s": m["seconds"]["flatten"],  # within train_s
         "gaussians": m["gaussians"],
         "pseudo-label": m["pseudo-label"],
         "held-out": m["held-out"],
         "load_before": load,
         "load_after": load_average(),
     }
+    if curve_every:
+        result["panorecon"]["heldout_curve"] = [
+            (h["seconds"], h["heldout_psnr"]) for h in m["history"] if "heldout_psnr" in h
+        ]
+        time_to_quality(result)
     for run in result["opensplat_runs"].values():
         sps = run.get("seconds_per_step")
         if isinstance(sps, float) and math.isfinite(sps):

@@ -29,7 +29,9 @@ shears each Gaussian along its ray onto the plane of the fused surface's normal 
 the given cloud's nearest points per ERP bin, their normals from central differences), which leaves what the
 centre sees (to first order) and lays the Gaussian on the surface for every other view. It is a projection, not a
 loss term: the trainer applies it every ``flatten_every`` steps and after the last, unless the cloud has no surface
-to flatten onto (``normal_coherence`` below FLAT_MIN_COHERENCE: random points).
+to flatten onto (``normal_coherence`` below FLAT_MIN_COHERENCE: random points). What the given cloud contributes
+(normals, coherence, each bin's plane basis: ``flatten_frames``) is computed once per run; each
+flattening is one pass over the Gaussians (a C++ kernel on the CPU, torch elsewhere).
 """
 
 from __future__ import annotations
@@ -184,48 +186,93 @@ def flatten_height(points: int, res: int, fov_deg: float) -> int:
     return max(2, min(anchor_height(res, fov_deg) // 2, int(np.sqrt(points / 16))))
 
 
-def flatten_onto_surface(model, normals: np.ndarray, thickness: float = FLAT_THICKNESS) -> np.ndarray:
-    """Shear every Gaussian of ``model`` along its ray u from the centre onto the plane of the surface normal n
-    at its ERP bin of ``normals`` [H, 2H, 3] (``surface_normals``, or a true surface's ``erp_normals``), in place:
-    Σ' = A Σ Aᵀ + thickness² (tr(A Σ Aᵀ) / 2) n nᵀ with A = I - u nᵀ / (n·u). A moves points along u only, so
-    the centre's view of the Gaussian is unchanged to first order (the projection's Jacobian J has J u = 0, so
-    J A = J), while any other position sees a disc on the surface (2DGS's and PGSR's flat Gaussians) whose
-    thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite normal or covariance, or
-    whose surface the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as they are; means,
-    opacities and colours never change. A Σ Aᵀ lies in the plane (nᵀ A = 0), so its axes come in closed form from
-    the 2 x 2 matrix on a basis of the plane (no 3 x 3 eigensolver). float64 numpy inside: on a GPU the parameters
-    make one round trip to the host. -> [N] bool: the Gaussians flattened."""
-    from .model import covariances, rotmat_to_wxyz
+def flatten_frames(normals: np.ndarray, device=None) -> torch.Tensor:
+    """What flattening reads from the given cloud, once per run: [H * 2H, 9] float64 on ``device``, per ERP bin
+    of ``normals`` [H, 2H, 3] (row-major) a basis (t1, t2) of the surface's plane (t1 = n x the axis least along
+    n, normalised; t2 = n x t1) and its normal n as given; NaN where the normal is not finite."""
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    helper = np.eye(3)[np.abs(np.nan_to_num(n)).argmin(1)]  # the axis least along n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t1 = np.cross(n, helper)
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return torch.from_numpy(np.concatenate([t1, np.cross(n, t1), n], 1)).to(device)
 
-    means = model.means.detach().cpu().double().numpy()
-    r = np.linalg.norm(means, axis=1)
-    u = means / np.maximum(r, 1e-300)[:, None]
-    rows, cols = _erp_bins(u, normals.shape[0])
-    n = normals[rows, cols].astype(np.float64)
-    cos = np.einsum("ni,ni->n", np.nan_to_num(n), u)
-    cov = covariances(model)
-    flat = np.isfinite(n).all(1) & (np.abs(cos) >= FLAT_MIN_COS) & (r > 0) & np.isfinite(cov).all((1, 2))
-    if not flat.any():
-        return flat
-    u, n, cos = u[flat], n[flat], cos[flat]
-    A = np.eye(3) - np.einsum("ni,nj->nij", u, n) / cos[:, None, None]
-    S = A @ cov[flat] @ np.swapaxes(A, 1, 2)
-    helper = np.eye(3)[np.abs(n).argmin(1)]  # the axis least along n: a basis (t1, t2) of the plane
-    t1 = np.cross(n, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
-    m11, m22 = np.einsum("ni,nij,nj->n", t1, S, t1), np.einsum("ni,nij,nj->n", t2, S, t2)
-    m12 = np.einsum("ni,nij,nj->n", t1, S, t2)
-    theta = 0.5 * np.arctan2(2 * m12, m11 - m22)
-    mid, half = (m11 + m22) / 2, np.hypot((m11 - m22) / 2, m12)
-    e1 = np.cos(theta)[:, None] * t1 + np.sin(theta)[:, None] * t2
-    R = np.stack([e1, np.cross(n, e1), n], -1)  # columns: the disc's axes and its normal (det +1)
-    var = np.stack([mid + half, mid - half, thickness**2 * mid], 1)
-    idx = torch.from_numpy(np.flatnonzero(flat)).to(model.quats.device)
+
+def flatten_onto_surface(model, frames: torch.Tensor, thickness: float = FLAT_THICKNESS) -> torch.Tensor:
+    """Shear every Gaussian of ``model`` along its ray u from the centre onto the plane of the surface normal n
+    at its ERP bin (``frames`` from ``flatten_frames`` of ``surface_normals``, or of a true surface's
+    ``erp_normals``), in place: Σ' = A Σ Aᵀ + thickness² (tr(A Σ Aᵀ) / 2) n nᵀ with A = I - u nᵀ / (n·u). A moves
+    points along u only, so the centre's view of the Gaussian is unchanged to first order (the projection's
+    Jacobian J has J u = 0, so J A = J), while any other position sees a disc on the surface (2DGS's and PGSR's
+    flat Gaussians) whose thickness is ``thickness`` times the RMS of its two axes. Gaussians without a finite
+    normal or covariance, or whose surface the centre sees at a grazing angle (|n·u| < FLAT_MIN_COS), are left as
+    they are, as are those whose sheared variances pass float64's range; means, opacities and colours never change.
+    On the CPU the C++ kernel (csrc/flatten_cpu.cpp), else
+    ``flatten_onto_surface_torch``; both float64 inside, on the model's device. -> [N] bool: the Gaussians
+    flattened."""
+    from .rasterize import cpu_backend
+
+    if model.means.device.type == "cpu" and cpu_backend.available():
+        return cpu_backend.flatten_surface(
+            model.means, model.quats.data, model.log_scales.data, frames, thickness, FLAT_MIN_COS
+        )
+    return flatten_onto_surface_torch(model, frames, thickness)
+
+
+def flatten_onto_surface_torch(model, frames: torch.Tensor, thickness: float = FLAT_THICKNESS) -> torch.Tensor:
+    """``flatten_onto_surface`` in torch float64 on the model's device (a GPU, or a CPU without the C++ kernel). A
+    Σ Aᵀ lies in the plane (nᵀ A = 0): its 2 x 2 matrix on the bin's basis (t1, t2) is that of the axes a_k = R_k
+    s_k seen through p_i = Aᵀ t_i = t_i - n (t_i·u) / (n·u); the disc's axes are its eigenvectors in closed form
+    (no 3 x 3 eigensolver), with n, and their quaternion Shepperd's (``rotmat_to_wxyz``).
+    ``flatten_onto_surface_reference`` is the per-axis loop. -> [N] bool."""
+    from .rasterize.projection import quat_to_rotmat
+
     with torch.no_grad():
-        model.quats[idx] = torch.from_numpy(rotmat_to_wxyz(R)).to(model.quats)
-        model.log_scales[idx] = torch.from_numpy(0.5 * np.log(np.maximum(var, 1e-30))).to(model.log_scales)
+        means = model.means.detach().double()
+        r = torch.linalg.vector_norm(means, dim=1)
+        u = means / r.clamp_min(1e-300)[:, None]
+        height = round((frames.shape[0] / 2) ** 0.5)
+        rows, cols = _erp_bins(u, height)
+        f = frames[rows * 2 * height + cols]  # [N, 9]
+        t, n = f[:, :6].view(-1, 2, 3), f[:, 6:]
+        cos = (n * u).sum(1)
+        R = quat_to_rotmat(model.quats.detach().double())  # [N, 3, 3], columns the axes' directions
+        s2 = torch.exp(2 * model.log_scales.detach().double())  # [N, 3] the axes' variances
+        flat = (cos.abs() >= FLAT_MIN_COS) & (r > 0) & torch.isfinite(R).all(2).all(1) & torch.isfinite(s2).all(1)
+        p = t - ((t * u[:, None]).sum(2) / cos[:, None])[..., None] * n[:, None]  # [N, 2, 3]
+        c = torch.bmm(p, R)  # [N, 2, 3]: p_i · R_k
+        cs = c * s2[:, None]
+        m11, m22, m12 = (cs[:, 0] * c[:, 0]).sum(1), (cs[:, 1] * c[:, 1]).sum(1), (cs[:, 0] * c[:, 1]).sum(1)
+        theta = 0.5 * torch.atan2(2 * m12, m11 - m22)
+        mid, half = (m11 + m22) / 2, torch.hypot((m11 - m22) / 2, m12)
+        e1 = torch.cos(theta)[:, None] * t[:, 0] + torch.sin(theta)[:, None] * t[:, 1]
+        q = _rotmat_to_wxyz(torch.stack([e1, torch.linalg.cross(n, e1), n], -1))
+        var = torch.stack([mid + half, mid - half, thickness**2 * mid], 1)
+        flat &= torch.isfinite(theta) & torch.isfinite(var).all(1)  # variances past float64's range: left as they are
+        model.quats.copy_(torch.where(flat[:, None], q.to(model.quats), model.quats))
+        ls = (0.5 * torch.log(var.clamp_min(1e-30))).to(model.log_scales)
+        model.log_scales.copy_(torch.where(flat[:, None], ls, model.log_scales))
     return flat
+
+
+def _rotmat_to_wxyz(R: torch.Tensor) -> torch.Tensor:
+    """``model.rotmat_to_wxyz`` in torch: [N, 3, 3] -> unit wxyz quaternions [N, 4] (Shepperd's method)."""
+    d0, d1, d2 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    big = torch.stack([1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2], 1)
+    k = big.argmax(1, keepdim=True)
+    s = 2 * torch.sqrt(big.gather(1, k)[:, 0].clamp_min(1e-300))  # 4 x the largest component
+    zy, yz, xz, zx, yx, xy = R[:, 2, 1], R[:, 1, 2], R[:, 0, 2], R[:, 2, 0], R[:, 1, 0], R[:, 0, 1]
+    cands = torch.stack(
+        [
+            torch.stack([s / 4, (zy - yz) / s, (xz - zx) / s, (yx - xy) / s], 1),
+            torch.stack([(zy - yz) / s, s / 4, (xy + yx) / s, (xz + zx) / s], 1),
+            torch.stack([(xz - zx) / s, (xy + yx) / s, s / 4, (yz + zy) / s], 1),
+            torch.stack([(yx - xy) / s, (xz + zx) / s, (yz + zy) / s, s / 4], 1),
+        ],
+        1,
+    )
+    q = cands.gather(1, k[:, :, None].expand(-1, 1, 4))[:, 0]
+    return q / torch.linalg.vector_norm(q, dim=1, keepdim=True)
 
 
 def flatten_onto_surface_reference(means, quats, log_scales, normals, thickness: float = FLAT_THICKNESS):

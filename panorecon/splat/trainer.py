@@ -49,6 +49,7 @@ from .regularisers import (
     FLAT_MIN_COHERENCE,
     anchor_height,
     depth_spread,
+    flatten_frames,
     flatten_height,
     flatten_onto_surface,
     normal_coherence,
@@ -289,6 +290,11 @@ METRICS_MEANING = {
     "no sky environment behind the Gaussians; disocclusion_fill: no points behind depth edges; depth_loss: no "
     "Pearson depth term; held-out: no held-out views; depth_metrics: no depth or point metrics against a truth "
     "(the points stage's report reads n/a); flatten: no flattening onto the starting cloud's surface",
+    "seconds": "wall seconds per stage: backend (loading or building the rasterizer), labels (pseudo-labels, "
+    "off-centre labels and held-out views), flatten_surface (the given cloud's surface normals, their coherence and "
+    "each bin's plane for flattening, once, before training; absent with flatten_every = 0), train (the steps, "
+    "without the held-out history samples), flatten (the flattenings within train: flatten / train is their "
+    "share), history, eval, total",
     "initial_thinning": "the initial cloud after thinning to the label resolution (splat/initial.thin_by_detail): "
     "points kept, and per level (0: the label-pixel spacing; l: sites 2^l times further apart, kept where colour "
     "and geometry are smooth within init_detail and init_detail_depth)",
@@ -458,13 +464,16 @@ def train(
     surface = None  # the given cloud's surface seen from the centre, in label-pixel bins (the anchor's target)
     if cfg.w_anchor:
         surface = torch.from_numpy(surface_distances(given_cloud.xyz, anchor_height(lres, cfg.fov_deg))).to(dev)
-    normals, coherence = None, None  # the given cloud's surface normals (flatten_height: bins the cloud fills)
+    frames, coherence = None, None  # the given cloud's surface planes per bin (flatten_height: bins the cloud fills)
     if cfg.flatten_every:
+        tf = time.perf_counter()
         normals = surface_normals(given_cloud.xyz, flatten_height(len(given_cloud.xyz), lres, cfg.fov_deg))
         coherence = normal_coherence(normals)
-        if coherence < FLAT_MIN_COHERENCE:
+        if coherence >= FLAT_MIN_COHERENCE:
+            frames = flatten_frames(normals, dev)
+        else:
             log.info("flattening skipped: %.0f %% of the cloud's neighbouring normals agree", 100 * coherence)
-            normals = None
+        seconds["flatten_surface"] = time.perf_counter() - tf
     # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
     views = labels + offcentre  # the views trained on: teacher depth for the centre's, masks for the others'
     targets = torch.from_numpy(np.stack([v.rgb for v in views])).to(dev)
@@ -489,6 +498,7 @@ def train(
     t = time.perf_counter()
     # training seconds exclude the held-out history samples; a resumed run continues from its last sample
     history_s, clock0 = 0.0, (history[-1].get("seconds", 0.0) if history else 0.0)
+    seconds["flatten"] = 0.0  # within seconds["train"]
     gen = np.random.default_rng(cfg.seed)
     order = gen.integers(0, len(views), size=cfg.iters)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
@@ -563,8 +573,11 @@ def train(
         opt.step()
         opt.zero_grad(set_to_none=True)
         strategy.step(model, opt, it + 1, extent)
-        if normals is not None and ((it + 1) % cfg.flatten_every == 0 or it + 1 == cfg.iters):
-            flatten_onto_surface(model, normals)
+        if frames is not None and ((it + 1) % cfg.flatten_every == 0 or it + 1 == cfg.iters):
+            tf = time.perf_counter()
+            flatten_onto_surface(model, frames)
+            synchronize(dev)
+            seconds["flatten"] += time.perf_counter() - tf
         footprint.refresh(model, cfg.footprint_filter, viewmats, Ks, lres, it + 1)
         sync_now = (
             (cfg.history_every and (it + 1) % cfg.history_every == 0)

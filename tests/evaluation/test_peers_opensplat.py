@@ -1,6 +1,7 @@
 """eval/peers/opensplat.py without OpenSplat: a fake binary that speaks its command line ("--version", "Step N:"
-lines, ``-o`` PLY) stands in, so the export, the command, the step timing, the PLY scoring and the JSON are
-checked; a NaN PLY and a failing run are reported as such, never scored."""
+lines, ``-o`` PLY, ``--save-every`` PLYs) stands in, so the export, the command, the step timing, the PLY scoring,
+the held-out curves and the JSON are checked; a NaN PLY and a failing run are reported as such, never scored. The
+curves' clock and the time to reach a PSNR on made-up lines and curves."""
 
 import importlib.util
 import json
@@ -39,9 +40,12 @@ else:
     rec = pycolmap.Reconstruction(root / "sparse" / "0")
     pc = PointCloud(np.array([p.xyz for p in rec.points3D.values()]), np.full((rec.num_points3D(), 3), 0.5))
 pc = pc.subset(np.arange(0, len(pc), 50))
+every = int(argv[argv.index("--save-every") + 1]) if "--save-every" in argv else -1
 for i in range(1, n + 1):
     time.sleep(0.01)
     print(f"Step {{i}}: 0.1 ({{i * 100 // n}}%)", flush=True)
+    if every > 0 and i % every == 0:
+        save_ply(GaussianModel.from_point_cloud(pc, 3), Path(out).with_name(f"{{Path(out).stem}}_{{i}}.ply"))
 if "{mode}" == "fail":
     sys.exit(3)
 model = GaussianModel.from_point_cloud(pc, 3)
@@ -63,10 +67,41 @@ def test_seconds_per_step_is_the_median_interval():
     assert script.seconds_per_step([(1, 0.0)]) != script.seconds_per_step([(1, 0.0)])  # NaN
 
 
+def test_the_training_clock_starts_at_the_first_step_and_leaves_out_the_saves():
+    lines = [(1, 10.0), (2, 11.0), (3, 16.0), (4, 17.0), (6, 19.0)]  # a 4 s save after step 2's line
+    assert script.training_clock(lines, {2}) == {1: 1.0, 2: 2.0, 3: 3.0, 4: 4.0, 6: 6.0}
+    assert script.training_clock(lines) == {1: 1.0, 2: 2.0, 3: 7.0, 4: 8.0, 6: 10.0}  # the save counted
+    assert script.training_clock([]) == {}
+
+
+def test_time_to_reach_is_the_first_crossing_linear_between_samples():
+    curve = [(1.0, 30.0), (2.0, 32.0), (3.0, 34.0), (4.0, 33.0)]
+    assert script.time_to_reach(curve, 33.0) == 2.5
+    assert script.time_to_reach(curve, 29.0) == 1.0  # the first sample already reaches it
+    assert script.time_to_reach(curve, 34.0) == 3.0
+    assert script.time_to_reach(curve, 35.0) is None
+    assert script.time_to_reach(curve, float("nan")) is None
+    assert script.time_to_reach([(1.0, 30.0), (2.0, float("nan")), (3.0, 34.0)], 32.0) == 2.0  # NaN skipped
+
+
+def test_time_to_quality_reads_both_trainers_curves_against_both_finals():
+    """Made-up curves: panorecon reaches OpenSplat's final 32 dB at 1.5 s and its own 34 at 3 s; OpenSplat reaches
+    its final at 400 s and never panorecon's, so its time to its own final is 400 / 1.5 times panorecon's."""
+    pan = {"held-out": {"psnr": 34.0}, "heldout_curve": [(1.0, 31.0), (2.0, 33.0), (3.0, 34.0)]}
+    run = {"status": "ok", "held-out": {"psnr": 32.0}, "heldout_curve": [(100.0, 25.0), (400.0, 32.0)]}
+    failed = {"status": "failed: 4 of 9 Gaussians have non-finite means"}
+    result = {"panorecon": pan, "opensplat_runs": {"colmap": run, "nerfstudio": failed}}
+    script.time_to_quality(result)
+    assert result["time_to_quality_targets"] == {"panorecon": 34.0, "opensplat_colmap": 32.0}
+    assert pan["seconds_to"] == {"panorecon": 3.0, "opensplat_colmap": 1.5}
+    assert run["seconds_to"] == {"panorecon": None, "opensplat_colmap": 400.0}
+    assert run["time_to_its_final_vs_panorecon"] == 400.0 / 1.5 and "seconds_to" not in failed
+
+
 @pytest.mark.slow
 def test_fake_opensplat_on_both_formats_is_scored_beside_panorecon(tmp_path):
     binary = fake_binary(tmp_path)
-    res = script.main([str(tmp_path / "out"), "--opensplat", str(binary), *TINY])
+    res = script.main([str(tmp_path / "out"), "--opensplat", str(binary), *TINY, "--curve-every", "1"])
     assert res["opensplat"] == "9.9.9 (git commit fake)" and res["iters"] == 3
     argv = (tmp_path / "argv_ok.txt").read_text().split()
     assert (
@@ -78,9 +113,16 @@ def test_fake_opensplat_on_both_formats_is_scored_beside_panorecon(tmp_path):
         assert run["gaussians"] == 2000 and run["non_finite_means"] == 0 and run["export_scale"] > 0
         assert isinstance(run["pseudo-label"]["psnr"], float) and isinstance(run["held-out"]["psnr"], float)
         assert run["seconds_per_step_vs_panorecon"] > 0 and run["status"] == "ok"
-    assert res["status"] == "ok"
+        seconds, psnrs = zip(*run["heldout_curve"])  # the PLYs after steps 1 and 2 (deleted), and the final
+        assert len(seconds) == 3 and 0 < seconds[0] < seconds[1] < seconds[2] and psnrs[-1] == run["held-out"]["psnr"]
+        assert not list((tmp_path / "out" / fmt).glob("opensplat_*.ply"))
+        assert set(run["seconds_to"]) == {"panorecon", "opensplat_colmap", "opensplat_nerfstudio"}
+        assert run["seconds_to"][f"opensplat_{fmt}"] <= seconds[-1]
+    assert res["status"] == "ok" and "--save-every" in argv and argv[argv.index("--save-every") + 1] == "1"
     pan = res["panorecon"]
     assert pan["gaussians"] > 0 and isinstance(pan["held-out"]["psnr"], float) and pan["seconds_per_step"] > 0
+    assert 0 <= pan["flatten_s"] < pan["train_s"]
+    assert len(pan["heldout_curve"]) == 3 and pan["heldout_curve"][-1][1] == pytest.approx(pan["held-out"]["psnr"])
     assert json.loads((tmp_path / "out" / "result.json").read_text())["scene"] == "bedroom"
 
 

@@ -1,6 +1,7 @@
 """splat/regularisers.py: the depth spread from three renders against the pairwise double sum over each pixel's
 blending weights (values and gradients), the surface anchor against a per-Gaussian loop over the points
-(values and gradients), and both unchanged at any scene scale."""
+(values and gradients), and both unchanged at any scene scale; flattening (the C++ kernel and the torch formula)
+against its per-axis loop and against each other."""
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from hypothesis import strategies as st
 
 from panorecon.geometry import intrinsics_from_fov, look_at_viewmat
 from panorecon.splat.model import GaussianModel, covariances
-from panorecon.splat.rasterize import project_gaussians, rasterize
+from panorecon.splat.rasterize import cpu_backend, project_gaussians, rasterize
 from panorecon.splat.rasterize.torch_backend import ALPHA_MAX, ALPHA_MIN
 from panorecon.splat.regularisers import (
     ANCHOR_BAND,
@@ -18,8 +19,10 @@ from panorecon.splat.regularisers import (
     anchor_height,
     depth_spread,
     depth_spread_reference,
+    flatten_frames,
     flatten_onto_surface,
     flatten_onto_surface_reference,
+    flatten_onto_surface_torch,
     normal_coherence,
     render_depth_sq,
     surface_anchor,
@@ -240,9 +243,13 @@ def _gaussians_on(pts: np.ndarray, k: int, extreme: bool = False) -> GaussianMod
     )
 
 
+FLATTENS = {"dispatch": flatten_onto_surface, "torch": flatten_onto_surface_torch}  # C++ on the CPU where built
+
+
 @pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
 @pytest.mark.parametrize("extreme", [False, True])
-def test_flatten_is_the_per_axis_reference_and_the_centre_sees_it_as_before(scale, extreme):
+@pytest.mark.parametrize("kernel", list(FLATTENS))
+def test_flatten_is_the_per_axis_reference_and_the_centre_sees_it_as_before(scale, extreme, kernel):
     pts = _box(scale)
     normals = surface_normals(pts, 24)
     normals[:, :6] = np.nan  # a sector without a surface: its Gaussians stay as they are
@@ -252,7 +259,7 @@ def test_flatten_is_the_per_axis_reference_and_the_centre_sees_it_as_before(scal
         *(t.detach().numpy() for t in (model.means, model.quats, model.log_scales)), normals
     )
     means, sh0 = model.means.detach().clone(), model.sh0.detach().clone()
-    flat = flatten_onto_surface(model, normals)
+    flat = FLATTENS[kernel](model, flatten_frames(normals)).numpy()
     after = covariances(model)
     np.testing.assert_array_equal(flat, ref_flat)
     assert 0.6 < flat.mean() < 0.95
@@ -280,7 +287,7 @@ def test_a_flattened_gaussian_lies_on_its_wall():
         model.means[:] = torch.tensor(u * 2 / u[0], dtype=torch.float32)
         model.quats[:] = torch.tensor([1.0, 0, 0, 0])
         model.log_scales[:] = float(np.log(0.05))
-    (flat,) = flatten_onto_surface(model, surface_normals(pts, 48), thickness=0.05)
+    (flat,) = flatten_onto_surface(model, flatten_frames(surface_normals(pts, 48)), thickness=0.05)
     cov = covariances(model)[0]
     assert flat and abs(u[0]) > FLAT_MIN_COS
     lam = np.linalg.eigvalsh(cov)
@@ -288,17 +295,49 @@ def test_a_flattened_gaussian_lies_on_its_wall():
     assert lam[-1] > 0.05**2  # the blob's depth along the ray now lies along the wall
 
 
-def test_flatten_leaves_a_gaussian_without_a_finite_covariance_as_it_is():
+@pytest.mark.parametrize("kernel", list(FLATTENS))
+def test_flatten_leaves_a_gaussian_without_a_finite_covariance_as_it_is(kernel):
     pts = _box(1.0)
     model = _gaussians_on(pts, 4)
     with torch.no_grad():
         model.log_scales[1, 0] = float("inf")
     before = model.log_scales.detach().clone(), model.quats.detach().clone()
-    flat = flatten_onto_surface(model, surface_normals(pts, 24))
+    flat = FLATTENS[kernel](model, flatten_frames(surface_normals(pts, 24)))
     assert not flat[1] and flat[[0, 2, 3]].all()
     torch.testing.assert_close(model.log_scales[1], before[0][1], rtol=0, atol=0)
     torch.testing.assert_close(model.quats[1], before[1][1], rtol=0, atol=0)
     assert torch.isfinite(model.log_scales[[0, 2, 3]]).all() and torch.isfinite(model.quats).all()
+
+
+@pytest.mark.skipif(not cpu_backend.available(), reason="the C++ cpu backend could not be built here")
+def test_the_flatten_kernel_is_the_torch_formula_to_a_float32_rounding():
+    """csrc/flatten_cpu.cpp against flatten_onto_surface_torch on 20,000 Gaussians of the box, among them a zero and
+    a NaN quaternion, infinite, NaN and huge scales (one whose variances are finite and whose sheared ones are not),
+    a Gaussian at the centre and one with a NaN mean: the same
+    Gaussians flattened, the same parameters to a float32 rounding (both float64 inside; libm's and torch's
+    transcendentals may round differently), the others untouched."""
+    pts = _box(1.0)
+    normals = surface_normals(pts, 24)
+    normals[:, :6] = np.nan
+    frames = flatten_frames(normals)
+    a, b = _gaussians_on(pts, 20_000), _gaussians_on(pts, 20_000)
+    e = torch.nonzero(flatten_onto_surface_torch(b, frames)).flatten()[:8]  # Gaussians that flatten, to edit
+    with torch.no_grad():
+        a.quats[e[0]], a.quats[e[1], 0] = 0.0, float("nan")
+        a.log_scales[e[2], 0], a.log_scales[e[3], 1], a.log_scales[e[4], 2] = float("inf"), float("nan"), 400.0
+        a.means[e[5]], a.means[e[6], 0] = 0.0, float("nan")
+        a.log_scales[e[7]] = 354.8  # s^2 = 1.5e308: finite, but the sheared variances' sum is not
+    b.load_state_dict(a.state_dict())
+    before = a.quats.detach().clone(), a.log_scales.detach().clone()
+    fa = cpu_backend.flatten_surface(a.means, a.quats.data, a.log_scales.data, frames, 0.05, FLAT_MIN_COS)
+    fb = flatten_onto_surface_torch(b, frames, 0.05)
+    torch.testing.assert_close(fa, fb, rtol=0, atol=0)
+    assert 0.6 < fa.float().mean() < 0.95 and fa[e[:2]].all() and not fa[e[2:]].any()  # NaN quaternion: identity
+    torch.testing.assert_close(a.quats, b.quats, rtol=0, atol=2e-7)
+    torch.testing.assert_close(a.log_scales, b.log_scales, rtol=2e-7, atol=2e-7, equal_nan=True)
+    torch.testing.assert_close(a.quats[~fa], before[0][~fa], rtol=0, atol=0, equal_nan=True)
+    torch.testing.assert_close(a.log_scales[~fa], before[1][~fa], rtol=0, atol=0, equal_nan=True)
+    assert torch.isfinite(a.quats[fa]).all() and torch.isfinite(a.log_scales[fa]).all()
 
 
 def test_normal_coherence_tells_a_surface_from_random_points():

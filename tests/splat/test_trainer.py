@@ -663,14 +663,16 @@ def test_flatten_every_lays_the_saved_gaussians_on_the_clouds_surface(setup, tmp
     steps = []
     real = trainer_mod.flatten_onto_surface
 
-    def counted(model, normals):
+    def counted(model, frames):
         steps.append(len(steps))
-        return real(model, normals)
+        return real(model, frames)
 
     monkeypatch.setattr(trainer_mod, "flatten_onto_surface", counted)
     c = cfg(iters=25, res=16, labels=12, heldout=0, checkpoint_every=0, history_every=0, flatten_every=10)
-    train(scene, pc, c, tmp_path / "f", depth_fn, progress=False)
+    m = train(scene, pc, c, tmp_path / "f", depth_fn, progress=False)
     assert len(steps) == 3  # after steps 10, 20 and the last, 25
+    assert 0 < m["seconds"]["flatten"] < m["seconds"]["train"] and m["seconds"]["flatten_surface"] > 0
+    assert "flatten" in m["meaning"]["seconds"]
     model = load_ply(tmp_path / "f" / "point_cloud.ply")
     normals = surface_normals(pc.xyz, flatten_height(len(pc.xyz), c.res, c.fov_deg))
     means = model.means.detach().double().numpy()
@@ -683,8 +685,8 @@ def test_flatten_every_lays_the_saved_gaussians_on_the_clouds_surface(setup, tmp
     in_plane = (np.trace(cov, axis1=1, axis2=2) - along_n) / 2
     np.testing.assert_allclose(along_n / in_plane, FLAT_THICKNESS**2, rtol=1e-2)
     steps.clear()
-    train(scene, pc, dataclasses.replace(c, flatten_every=0), tmp_path / "g", depth_fn, progress=False)
-    assert steps == []
+    off = train(scene, pc, dataclasses.replace(c, flatten_every=0), tmp_path / "g", depth_fn, progress=False)
+    assert steps == [] and off["seconds"]["flatten"] == 0 and "flatten_surface" not in off["seconds"]
 
 
 def test_a_cloud_without_a_surface_is_not_flattened_and_the_run_says_why(setup, tmp_path, monkeypatch):

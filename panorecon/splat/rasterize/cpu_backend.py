@@ -1,13 +1,14 @@
 """The ``cpu`` backend: EWA projection (csrc/project_cpu.cpp, parallel over Gaussians), SH colours of the visible
 Gaussians (csrc/sh_cpu.cpp, parallel over Gaussians) and tiled compositing (csrc/rasterize_cpu.cpp, parallel over
 tiles) in C++ with hand-written backwards, through ATen's thread pool (OpenMP); the training loss's SSIM
-(csrc/ssim_cpu.cpp), L1 and depth term (csrc/loss_cpu.cpp) and the densification statistic (csrc/densify_cpu.cpp)
-beside them. Built with torch.utils.cpp_extension on first use (or ahead of time by
-``python -m panorecon.splat.rasterize.build``) into ``$PANORECON_CACHE/torch_extensions/<checkout>`` (default
-~/.cache/panorecon). Compiled with -O3 and no -march=native, so the build is portable: the hot compositing functions
-are built three times (x86-64-v4 with AVX-512, x86-64-v3 with AVX2 and FMA, and baseline x86-64) and the loader picks
-by CPU. csrc/peak_cpu.cpp holds the FMA loop and copy that measure the machine's limits for the roofline benchmark.
-Compositing is float32; the projection runs in the inputs' dtype (float32 in training, float64 in tests).
+(csrc/ssim_cpu.cpp), L1 and depth term (csrc/loss_cpu.cpp), the densification statistic (csrc/densify_cpu.cpp) and
+the flattening onto the given cloud's surface (csrc/flatten_cpu.cpp) beside them. Built with
+torch.utils.cpp_extension on first use (or ahead of time by ``python -m panorecon.splat.rasterize.build``) into
+``$PANORECON_CACHE/torch_extensions/<checkout>`` (default ~/.cache/panorecon). Compiled with -O3 and no
+-march=native, so the build is portable: the hot compositing functions are built three times (x86-64-v4 with AVX-512,
+x86-64-v3 with AVX2 and FMA, and baseline x86-64) and the loader picks by CPU. csrc/peak_cpu.cpp holds the FMA loop
+and copy that measure the machine's limits for the roofline benchmark. Compositing is float32; the projection runs in
+the inputs' dtype (float32 in training, float64 in tests).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ SOURCE_FILES = (
     "ssim_cpu.cpp",
     "loss_cpu.cpp",
     "densify_cpu.cpp",
+    "flatten_cpu.cpp",
     "peak_cpu.cpp",
 )
 CFLAGS, LDFLAGS = ["-O3", "-fopenmp", "-Wno-psabi"], ["-fopenmp"]
@@ -318,3 +320,20 @@ def accumulate_screen_grads(grad_sum, count, g_means2d, radii, width: int, heigh
         raise ValueError("accumulate_screen_grads: grad_sum and count must be contiguous float32 tensors")
     g = g_means2d.detach().float().contiguous()
     load().accumulate_screen_grads(grad_sum, count, g, radii.to(torch.int32).contiguous(), width / 2, height / 2)
+
+
+def flatten_surface(means, quats, log_scales, frames, thickness: float, min_cos: float) -> torch.Tensor:
+    """``regularisers.flatten_onto_surface_torch`` in C++, in place: quats [N, 4] and log_scales [N, 3] (float32, a
+    model's parameters' data) of the Gaussians at means [N, 3] flattened onto ``frames`` [2 H^2, 9] float64
+    (``regularisers.flatten_frames``) -> [N] bool, the Gaussians flattened."""
+    if not quats.dtype == log_scales.dtype == torch.float32:
+        raise ValueError("flatten_surface: quats and log_scales must be float32 tensors")
+    height = round((frames.shape[0] / 2) ** 0.5)
+    q, ls = quats.contiguous(), log_scales.contiguous()  # the kernel writes contiguous rows: copied back if not
+    flat = load().flatten_surface(
+        means.detach().float().contiguous(), q, ls, frames.double().contiguous(), height, thickness, min_cos
+    )
+    for dst, src in ((quats, q), (log_scales, ls)):
+        if src.data_ptr() != dst.data_ptr():
+            dst.copy_(src)
+    return flat

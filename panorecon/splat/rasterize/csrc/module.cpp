@@ -1,6 +1,7 @@
 // The Python module of the cpu backend: projection (project_cpu.cpp), SH colours (sh_cpu.cpp), compositing
 // (rasterize_cpu.cpp), the training loss's SSIM (ssim_cpu.cpp), L1 and depth term (loss_cpu.cpp), the densification
-// statistic (densify_cpu.cpp), and the machine's measured limits for the roofline benchmark (peak_cpu.cpp).
+// statistic (densify_cpu.cpp), flattening onto the given cloud's surface (flatten_cpu.cpp), and the machine's measured
+// limits for the roofline benchmark (peak_cpu.cpp).
 #include <torch/extension.h>
 #include <vector>
 
@@ -34,6 +35,8 @@ torch::Tensor pearson_backward(torch::Tensor x, torch::Tensor y, torch::Tensor v
                                torch::Tensor g_loss);
 void accumulate_screen_grads(torch::Tensor grad_sum, torch::Tensor count, torch::Tensor g_m2d, torch::Tensor radii,
                              double sx, double sy);
+torch::Tensor flatten_surface(torch::Tensor means, torch::Tensor quats, torch::Tensor log_scales, torch::Tensor frames,
+                              int64_t height, double thickness, double min_cos);
 std::vector<double> peak_fma(int64_t iters, int64_t lanes);
 std::vector<double> stream_copy(int64_t n, int64_t repeats);
 
@@ -52,6 +55,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("pearson_backward", &pearson_backward, "1 - Pearson correlation, gradient w.r.t. the rendered depth");
   m.def("accumulate_screen_grads", &accumulate_screen_grads,
         "densification statistic in place: sums of NDC 2D-mean gradient norms and counts of the seen pairs");
+  m.def("flatten_surface", &flatten_surface, "flattening onto the surface's planes, in place -> [N] bool flattened");
   m.def("peak_fma", &peak_fma, "FMA loop on every thread, 8 or 16 lanes -> [seconds, flops]");
   m.def("stream_copy", &stream_copy, "STREAM-like copy on every thread -> [seconds, bytes]");
 }
