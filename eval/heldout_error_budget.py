@@ -119,11 +119,12 @@ def flatten_onto_surface(model, scene, scale: float, thickness: float | None = N
     distance, ``geometry.erp_normals``; ``scale`` does not change a normal): the centre sees it as before, other
     positions see a disc on the true surface."""
     from panorecon.geometry import erp_normals
-    from panorecon.splat.regularisers import FLAT_THICKNESS
+    from panorecon.splat.regularisers import FLAT_THICKNESS, flatten_frames
     from panorecon.splat.regularisers import flatten_onto_surface as flatten
 
     flat = _replace(model)
-    flatten(flat, erp_normals(scene.distance), FLAT_THICKNESS if thickness is None else thickness)
+    frames = flatten_frames(erp_normals(scene.distance), flat.means.device)
+    flatten(flat, frames, FLAT_THICKNESS if thickness is None else thickness)
     return flat
 
 
