@@ -155,13 +155,14 @@ def unavailable(rec: dict) -> bool:
     return isinstance(note, str) and note.startswith("n/a")
 
 
-def finished_rows(paths: list[Path], retry_unavailable: bool = False) -> dict[str, dict]:
-    """run_id -> its results.csv record, over every ``paths`` file that exists; a row in several files keeps the
-    first. ``retry_unavailable``: a row that read n/a is left out, to be tried again (on another machine it may
-    run); by default it is as finished as any other (a "failed: ..." row, the run's outcome, always is)."""
+def finished_rows(results: list[dict[str, dict]], retry_unavailable: bool = False) -> dict[str, dict]:
+    """run_id -> its results.csv record, over every file's records in ``results`` (``read_results``); a row in
+    several files keeps the first. ``retry_unavailable``: a row that read n/a is left out, to be tried again (on
+    another machine it may run); by default it is as finished as any other (a "failed: ..." row, the run's
+    outcome, always is)."""
     found: dict[str, dict] = {}
-    for p in paths:
-        for rid, rec in read_results(p).items():
+    for records in results:
+        for rid, rec in records.items():
             if not (retry_unavailable and unavailable(rec)):
                 found.setdefault(rid, rec)
     return found
@@ -227,8 +228,9 @@ def run_suites(
         resolve_names(suite)  # every scene, source and teacher, before the first stage and before --out is made
     out = Path(out_dir)
     outs = suite_out_dirs(suites, out)
-    check_leftovers(suites, outs, [read_results(o / "results.csv") for o in outs], jobs)
-    done_csv = finished_rows([o / "results.csv" for o in outs], retry_unavailable)
+    committed = [read_results(o / "results.csv") for o in outs]
+    check_leftovers(suites, outs, committed, jobs)
+    done_csv = finished_rows(committed, retry_unavailable)
     for o in outs:
         o.mkdir(parents=True, exist_ok=True)
     cache = StageCache(cache_dir or out / "cache")
