@@ -15,6 +15,7 @@ import time
 import numpy as np
 from scipy import ndimage
 
+from panorecon.fusion import FusionConfig
 from panorecon.fusion.affine import align_affine_views
 from panorecon.fusion.connectivity import check_connectivity
 from panorecon.geometry import PinholeCamera, ViewDepth
@@ -115,7 +116,7 @@ def moge_merge(scene, teacher, views=None, fusion_config=None, view_size=None):
     seconds["teacher"] = time.perf_counter() - t
     t = time.perf_counter()
     if any(v.affine for v in vds):  # MoGe's merge takes scale-only views: align the shifts first
-        dists, _, _ = align_affine_views(vds)
+        dists, _, _ = align_affine_views(vds, gauge=(fusion_config or FusionConfig()).affine_gauge)
         vds = [ViewDepth(v.camera, d, "distance", np.isfinite(d)) for v, d in zip(vds, dists)]
     distance = merge_views(vds, scene.height, scene.width)
     seconds["fusion"] = time.perf_counter() - t

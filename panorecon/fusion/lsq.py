@@ -50,6 +50,7 @@ import scipy.sparse.linalg as spla
 from .. import checks as C
 from ..checks import opt
 from ..geometry import ViewDepth, erp_pixel_to_lonlat, sample_erp
+from .affine import GAUGES as AFFINE_GAUGES
 from .affine import align_affine_views
 from .connectivity import check_connectivity
 from .operators import (
@@ -98,6 +99,7 @@ class FusionConfig:
     # spreads a jump over a few pixels (sim:relative's 1.5 px: 3), a grazing surface keeps edge_jump's test
     # (warp.depth_edge_pixels); 0: edge_jump only
     edge_reach: int = 3
+    affine_gauge: str = "reference"  # affine views' global shift (affine.py): "reference" or "mean-shift"
     resolution: str = "views"  # "views": solve up to the level the views resolve, then guided upsampling; "full"
     upsample_radius: int = 2  # guided upsampling window radius, solve-level pixels (upsample.py)
     upsample_eps: float = 1e-4  # guided upsampling regularisation, colour variance (colour in [0, 1])
@@ -118,6 +120,8 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.sampling={self.sampling!r}: expected 'linear' or 'nearest'")
         if not (self.supersample is None or (isinstance(self.supersample, int) and 1 <= self.supersample <= 8)):
             raise ValueError(f"FusionConfig.supersample={self.supersample!r}: expected None or an integer in [1, 8]")
+        if self.affine_gauge not in AFFINE_GAUGES:
+            raise ValueError(f"FusionConfig.affine_gauge={self.affine_gauge!r}: expected one of {', '.join(AFFINE_GAUGES)}")
         if self.resolution not in ("views", "full"):
             raise ValueError(f"FusionConfig.resolution={self.resolution!r}: expected 'views' or 'full'")
         if not (isinstance(self.upsample_radius, int) and self.upsample_radius >= 0 and self.upsample_eps > 0):
@@ -166,13 +170,22 @@ class FusionOptions:
         check=C.int_in(0, 64, "view pixels"),
         neutral=0,
     )
+    affine_gauge: str = opt(
+        FusionConfig.affine_gauge,
+        "how affine-invariant views' global shift is fixed: 'reference' (the reference view's shift that the other "
+        "views' overlaps fit best) or 'mean-shift' (the teacher's shifts average to zero; the first alignment)",
+        choices=AFFINE_GAUGES,
+        neutral="mean-shift",
+    )
 
     def __post_init__(self):
         C.validate(self)
 
     def config(self, **solver) -> FusionConfig:
         """A ``FusionConfig`` with these settings and the solver's ``solver`` (e.g. ``cg_device``)."""
-        return FusionConfig(edge_jump=self.edge_jump or None, edge_reach=self.edge_reach, **solver)
+        return FusionConfig(
+            edge_jump=self.edge_jump or None, edge_reach=self.edge_reach, affine_gauge=self.affine_gauge, **solver
+        )
 
 
 @dataclass
@@ -560,7 +573,7 @@ def fuse_views(
     metric = all(v.metric for v in views)
     affine = any(v.affine for v in views)
     if affine:
-        dists, view_shift, affine_report = align_affine_views(views)
+        dists, view_shift, affine_report = align_affine_views(views, gauge=cfg.affine_gauge)
     else:
         dists, view_shift, affine_report = [v.to_distance() for v in views], np.zeros(len(views)), None
     solver = f"pcg+{cfg.preconditioner}" + (

@@ -86,8 +86,12 @@ def test_a_moved_default_is_another_run_and_pinning_it_gives_the_old_one():
 
 def test_fusion_settings_enter_the_points_identity_only_away_from_their_neutral_value():
     row = Row("bedroom", 512, "fibonacci", "sim:relative")
-    assert row._points_params()["fusion"] == {"edge_jump": pytest.approx(0.4054651081081644), "edge_reach": 3}
-    off = dataclasses.replace(row, fusion={"edge_jump": 0.0, "edge_reach": 0})
+    assert row._points_params()["fusion"] == {
+        "edge_jump": pytest.approx(0.4054651081081644),
+        "edge_reach": 3,
+        "affine_gauge": "reference",
+    }
+    off = dataclasses.replace(row, fusion={"edge_jump": 0.0, "edge_reach": 0, "affine_gauge": "mean-shift"})
     assert "fusion" not in off._points_params()
     assert len({row.points_key(), off.points_key(), row.run_id(), off.run_id()}) == 4
     assert off.fusion_options().config().edge_jump is None  # 0: off, as the fusion's None
@@ -98,3 +102,5 @@ def test_fusion_options_are_checked_by_their_declaration():
         FusionOptions(edge_reach=-1)
     with pytest.raises(ValueError, match="edge_jump"):
         FusionOptions(edge_jump=float("nan"))
+    with pytest.raises(ValueError, match="affine_gauge"):
+        FusionOptions(affine_gauge="median")
