@@ -154,5 +154,6 @@ def _pictures(folder: Path, hoho, demo, fused: dict, clouds: dict) -> None:
         fig.savefig(tmp, dpi=70)
     plt.close(fig)
 
+
 if __name__ == "__main__":
     raise SystemExit(main())
