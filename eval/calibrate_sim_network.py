@@ -35,7 +35,7 @@ from panorecon.teachers.sim import NETWORK, PROFILES, SimTeacher
 
 TARGET_TEACHER = "onnx:panorecon/teachers/weights/learned-w16.onnx"
 MATCHED = ("abs_rel", "cross_view", "centre_vs_border")
-GRID = {"compress": (0.8, 0.9, 0.95), "texture": (0.05, 0.15), "bend": (0.05, 0.15, 0.3)}
+GRID = {"compress": (0.8, 0.9, 0.95), "texture": (0.05, 0.15, 0.3), "bend": (0.05, 0.15)}
 ROOT = Path(__file__).resolve().parent.parent
 
 

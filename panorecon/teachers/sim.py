@@ -63,7 +63,7 @@ class SimProfile:
 
 # sim:network's (gamma, kappa, rho): eval/calibrate_sim_network.py's choice, closest to learned-w16's seen-family
 # per-view AbsRel, cross-view disagreement and centre-vs-border disagreement (docs/benchmarks.md)
-NETWORK = (0.6, 0.1, 0.1)
+NETWORK = (0.95, 0.15, 0.05)
 
 ARG = "<profile>"  # the spec's argument (teachers/spec.py)
 OPTIONS: dict = {}  # a profile takes no options
