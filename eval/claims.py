@@ -2,8 +2,8 @@
 
     python eval/claims.py benchmarks/tables [--step N] [--markdown] [--suites eval/suites]
 
-Reads ``DIR/table{2,4,5,6,7}/results.csv`` and ``DIR/table5_population/results.csv`` (``panorecon ablate
-eval/suites/NAME.toml --out DIR/NAME``)
+Reads ``DIR/table{2,4,5,6,7}/results.csv``, ``DIR/table5_population/results.csv`` and the tables under the
+learned teachers, ``DIR/table{2,4}_learned/results.csv`` (``panorecon ablate eval/suites/NAME.toml --out DIR/NAME``)
 and, for each claim of the paper's §3, takes the paired difference that the claim is about (run by run on the
 same scene and seed, ``evaluation/stats.py``) on the paper's protocol (pseudo-label PSNR) and on held-out
 views, each with its 95 % interval on these scenes and across new scenes. A claim is **confirmed** when every
@@ -32,6 +32,7 @@ from panorecon.evaluation.stats import RESOLVED, compare
 from panorecon.evaluation.suite import load_suite
 
 SUITES = Path(__file__).resolve().parent / "suites"
+LEARNED = "panorecon/teachers/weights"  # the shipped learned teachers, as the suites name them (onnx:...)
 
 # (claim, paper's figure, table, [(row, reference, sign)]: the claim says sign * (row - reference) > 0)
 CLAIMS = [
@@ -49,6 +50,21 @@ CLAIMS = [
         "42.07 vs 41.67 (VGGT), 32.93 (DPT)",
         "table4",
         [("sim:clean", "sim:relative", -1), ("sim:affine-disparity", "sim:relative", -1)],
+    ),
+    (
+        "Fibonacci initialization is the best of Table 2's rows, under a learned teacher",
+        "42.07 dB, next best 38.64 (COLMAP)",
+        "table2_learned",
+        [(r, "fibonacci", -1) for r in ("icosahedral", "latlong", "cube", "moge-merge", "erp-direct")],
+    ),
+    (
+        "A better depth teacher gives better Gaussians (learned teachers)",
+        "42.07 vs 41.67 (VGGT), 32.93 (DPT)",
+        "table4_learned",
+        [
+            (f"onnx:{LEARNED}/learned-w16.onnx", "sim:relative", -1),
+            (f"onnx:{LEARNED}/learned-w8.onnx", f"onnx:{LEARNED}/learned-w16.onnx", -1),
+        ],
     ),
     (
         "180 pseudo-labels are best",
@@ -78,7 +94,8 @@ CLAIMS = [
 ]
 NOT_HERE = {
     "colmap-mvs": "n/a: COLMAP MVS needs a CUDA build of pycolmap",
-    "real teachers": "n/a: MoGe-2, DPT, Metric3D and VGGT weights cannot be downloaded here; sim: profiles stand in",
+    "real teachers": "n/a: MoGe-2, DPT, Metric3D and VGGT weights cannot be downloaded here; sim: profiles and the "
+    "project's own learned teachers stand in",
 }
 
 
@@ -177,6 +194,7 @@ def _range(cells: dict, which: str = "these") -> str:
     parts = []
     for label, c in cells.items():
         t = c[which]
+        label = _short(label)
         if t is None:
             parts.append(f"{label} n/a")
             continue
@@ -195,6 +213,11 @@ def _range(cells: dict, which: str = "these") -> str:
             notes.append("across new scenes")
         parts.append(text + (f" ({'; '.join(notes)})" if notes else ""))
     return "; ".join(parts)
+
+
+def _short(label: str) -> str:
+    """A shipped learned teacher's row label without its folder: ``learned-w16``."""
+    return label.removeprefix(f"onnx:{LEARNED}/").removesuffix(".onnx")
 
 
 def markdown(claims: list[dict]) -> str:
