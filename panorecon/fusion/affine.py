@@ -11,15 +11,16 @@ global shift of t, which overlaps observe only weakly (through the variation of 
   relative to the reference's own t: with (a_ref, b_ref) = (1, beta) each other view's (a, b) is the least-squares
   fit to its overlaps, leaving a misfit E(beta) = [1, beta] S [1, beta]^T (S: the Schur complement of the
   others' block of M^T M), and beta minimises E(beta) / D(beta), D = [1, beta] M_ref^T M_ref [1, beta]^T the
-  reference's t over its overlaps: a 2 x 2 generalised eigenproblem, closed form. (a, b) are then the total least
-  squares solution under b_ref = beta a_ref. A network's raw output has an offset of its own (its value at zero
-  disparity), so no assumption about the shifts' mean is made.
+  reference's t over its overlaps: a 2 x 2 generalised eigenproblem, closed form, kept where the reference's t is
+  positive on all its pixels (beta > -min raw_ref: output of noise can put the minimum below). (a, b) are then
+  the total least squares solution under b_ref = beta a_ref. A network's raw output has an offset of its own (its
+  value at zero disparity), so no assumption about the shifts' mean is made.
 - ``"mean-shift"`` (the first alignment; the committed tables of ``sim:affine-disparity`` pin it): (a, b) from
   the two smallest right singular vectors of M (total least squares), combined so that a_ref = 1 and mean(b) = 0,
   i.e. assuming the teacher's shifts average to zero. Right for a noise model with zero-mean shifts; a network
-  whose output is offset (learned-w16 on bedroom's 20 views: raw value -3.7 at zero disparity, the mean of each
-  view's fit to the truth) breaks it, and under such
-  noise the two singular vectors mix until scales turn negative.
+  whose output is offset (learned-w16 on bedroom's 20 views at width 256: raw value -3.7 at zero disparity, the
+  mean of each view's fit to the truth) breaks it, and under such noise the two singular vectors mix until scales
+  turn negative.
 
 Views not linked to the reference through overlaps keep a = 1, b = 0 and are reported. On scenes with a large
 depth range (outdoors) a small error in inverse distance still moves far points a lot: the intrinsic weakness of
@@ -149,7 +150,13 @@ def _reference_shift_gauge(M: np.ndarray, ref: int) -> tuple[np.ndarray, np.ndar
     Li = np.linalg.inv(np.linalg.cholesky(G_rr))
     y = Li.T @ np.linalg.eigh(Li @ S @ Li.T)[1][:, 0]
     norms = _column_norms(M)
-    beta = (y[1] / norms[2 * ref + 1]) / (y[0] / norms[2 * ref])
+    beta = (y[1] / norms[2 * ref + 1]) / (y[0] / norms[2 * ref]) if y[0] != 0 else -np.inf
+    # t must be positive on the reference's pixels (a_ref = 1): beta > -min(raw_ref). Below that bound the ratio
+    # falls towards it, so the constrained minimum is the bound (a farthest reference pixel at 1,000x the range)
+    seen = M[:, 2 * ref + 1] != 0
+    raw_ref = M[seen, 2 * ref] / M[seen, 2 * ref + 1]
+    beta_min = -raw_ref.min() + 1e-3 * (np.ptp(raw_ref) or 1.0)
+    beta = max(beta, beta_min)
     # total least squares in the 2V - 1 unknowns left once b_ref = beta a_ref
     keep = [k for k in range(n) if k != 2 * ref + 1]
     P = np.zeros((n, n - 1))

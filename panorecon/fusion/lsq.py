@@ -121,7 +121,9 @@ class FusionConfig:
         if not (self.supersample is None or (isinstance(self.supersample, int) and 1 <= self.supersample <= 8)):
             raise ValueError(f"FusionConfig.supersample={self.supersample!r}: expected None or an integer in [1, 8]")
         if self.affine_gauge not in AFFINE_GAUGES:
-            raise ValueError(f"FusionConfig.affine_gauge={self.affine_gauge!r}: expected one of {', '.join(AFFINE_GAUGES)}")
+            raise ValueError(
+                f"FusionConfig.affine_gauge={self.affine_gauge!r}: expected one of {', '.join(AFFINE_GAUGES)}"
+            )
         if self.resolution not in ("views", "full"):
             raise ValueError(f"FusionConfig.resolution={self.resolution!r}: expected 'views' or 'full'")
         if not (isinstance(self.upsample_radius, int) and self.upsample_radius >= 0 and self.upsample_eps > 0):

@@ -32,7 +32,7 @@ def test_listed_and_named_sim(bedroom):
 
 def test_sim_is_deterministic_and_severity_increases(bedroom, cams):
     errs = []
-    for name in ["clean", "relative", "affine-disparity"]:
+    for name in ["clean", "relative", "affine-disparity", "network"]:
         t = get_teacher(f"sim:{name}")
         a, b = t.predict_views(bedroom, cams), t.predict_views(bedroom, cams)
         for x, y in zip(a, b):
@@ -49,7 +49,73 @@ def test_sim_is_deterministic_and_severity_increases(bedroom, cams):
             coef = np.linalg.lstsq(A, target[ok], rcond=None)[0]
             rel.append(np.mean(np.abs(A @ coef - target[ok]) / target[ok]))
         errs.append(np.median(rel))
-    assert errs[0] < errs[1] < errs[2], errs
+    assert errs[0] < errs[1] < errs[2] < errs[3], errs
+
+
+class TestNetworkProfile:
+    """sim:network: affine-disparity's errors plus errors that follow the view's content and framing."""
+
+    def _z_and_sky(self, scene, cam):
+        d, sky = true_view_distance(scene, cam)
+        return d / cam.z_to_distance_factor(), sky
+
+    def test_the_other_profiles_do_not_read_the_image(self, bedroom, cams):
+        """Profiles without content or framing errors ignore the image and draw the same random numbers as
+        before sim:network existed (the committed tables' sim: rows stay reproducible)."""
+        from panorecon.teachers.sim import PROFILES, SimTeacher
+
+        z, sky = self._z_and_sky(bedroom, cams[0])
+        for name in ("clean", "relative", "affine-disparity"):
+            t = SimTeacher(PROFILES[name], 0)
+            assert not PROFILES[name].reads_image
+            plain = t._corrupt(z, sky, t._rng("bedroom", 0))[0]
+            given = t._corrupt(z, sky, t._rng("bedroom", 0), rgb=np.zeros((*z.shape, 3)))[0]
+            np.testing.assert_array_equal(plain, given)
+
+    def test_errors_follow_the_image(self, bedroom, cams):
+        """The same depth under another image gives another output: the luminance is copied into the depth."""
+        from panorecon.teachers.sim import PROFILES, SimTeacher
+
+        t = SimTeacher(PROFILES["network"], 0)
+        z, sky = self._z_and_sky(bedroom, cams[0])
+        rng = np.random.default_rng(0)
+        a = t._corrupt(z, sky, t._rng("bedroom", 0), rgb=rng.random((*z.shape, 3)))[0]
+        b = t._corrupt(z, sky, t._rng("bedroom", 0), rgb=rng.random((*z.shape, 3)))[0]
+        flat = t._corrupt(z, sky, t._rng("bedroom", 0), rgb=np.full((*z.shape, 3), 0.5))[0]
+        ok = np.isfinite(a) & np.isfinite(b) & np.isfinite(flat)
+        assert np.mean(np.abs(np.log(a[ok] / b[ok]))) > 0.01
+        assert not np.allclose(a[ok], flat[ok])
+
+    def test_the_same_depth_reads_otherwise_at_the_border(self):
+        """A fronto-parallel wall (z constant) under a flat image: the output bends with the framing, by rho
+        between the centre and the corners (in log depth, before the disparity's scale and shift)."""
+        from panorecon.teachers.sim import PROFILES, SimTeacher
+
+        p = PROFILES["network"]
+        t = SimTeacher(p, 0)
+        z = np.full((64, 64), 3.0)
+        log_z = _network_log_depth(t, z)
+        bend = log_z[0, 0] - log_z[32, 32]
+        assert bend == pytest.approx(p.bend * 2.0, rel=0.05)
+
+    def test_the_range_is_compressed_to_the_median(self):
+        """Depth ratios within a view shrink to the power gamma."""
+        from panorecon.teachers.sim import PROFILES, SimTeacher
+
+        p = PROFILES["network"]
+        t = SimTeacher(p, 0)
+        z = np.tile(np.geomspace(1.0, 8.0, 64), (64, 1))
+        log_z = _network_log_depth(t, z)
+        centre = 32
+        ratio = (log_z[centre, -1] - log_z[centre, 0]) / np.log(8.0)
+        assert ratio == pytest.approx(p.compress, rel=0.05)
+
+
+def _network_log_depth(t, z):
+    """sim:network's content and framing errors alone (no warp, blur, noise, scale or shift), flat grey image."""
+    from panorecon.teachers.sim import _content_and_framing
+
+    return _content_and_framing(np.log(z), np.ones(z.shape, bool), np.full((*z.shape, 3), 0.5), t.profile, True)
 
 
 def test_sky_is_never_valid():
