@@ -52,9 +52,10 @@ def seeded_teacher(spec: str | None) -> bool:
 
 def teacher_fingerprint(spec: str | None) -> str | None:
     """``spec``, and for teachers that load files (onnx:, file:, hf:, moge:) ``spec#<digest>`` of the files'
-    relative names, sizes and modification times: a stage cache keyed by it recomputes when the model on disk
-    changes. A model id is looked up in the Hugging Face cache (its snapshot folder names the commit); a spec
-    whose files are not found is returned as is (loading it fails with the reason)."""
+    relative names and contents (SHA-256): a stage cache keyed by it recomputes when the model on disk changes,
+    and a run's identity is the same on a fresh clone or another machine (modification times are not). A model
+    id is looked up in the Hugging Face cache (its snapshot folder names the commit); a spec whose files are not
+    found is returned as is (loading it fails with the reason)."""
     if not spec:
         return spec
     kind, _, arg = spec.partition(":")
@@ -77,9 +78,24 @@ def teacher_fingerprint(spec: str | None) -> str | None:
         files = sorted(f for f in root.rglob("*") if f.is_file())
     h = hashlib.sha256()
     for f in (f for f in files if f.is_file()):
-        st = f.stat()
-        h.update(f"{f.relative_to(root)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+        h.update(f"{f.relative_to(root)}:{_content_digest(f)}\n".encode())
     return f"{spec}#{h.hexdigest()[:12]}" if any(f.is_file() for f in files) else spec
+
+
+_DIGESTS: dict[tuple[str, int, int], str] = {}  # (path, size, mtime_ns) -> SHA-256 of the contents, per process
+
+
+def _content_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes, read once per process while its size and modification time stay the same."""
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _DIGESTS:
+        h = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        _DIGESTS[key] = h.hexdigest()
+    return _DIGESTS[key]
 
 
 WEIGHTS = Path(__file__).parent / "weights"  # the learned teachers shipped with panorecon (`teachers train`)

@@ -257,3 +257,21 @@ def test_fingerprint_follows_the_model_files(tmp_path):
     before = teacher_fingerprint(f"file:{npy}?scale=2")
     np.save(npy, np.ones((8, 16), np.float32))
     assert teacher_fingerprint(f"file:{npy}?scale=2") != before
+
+
+def test_fingerprint_is_the_same_on_a_fresh_copy(tmp_path):
+    """A clone or a copy touches every file's modification time; the run identity of a table under an onnx:
+    teacher must not move with it (the committed tables under learned teachers)."""
+    import os
+
+    from panorecon.teachers import teacher_fingerprint
+
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "m.onnx").write_bytes(b"weights")
+        (tmp_path / name / "m.json").write_text("{}")
+    os.utime(tmp_path / "b" / "m.onnx", (1, 1))
+    fa, fb = (teacher_fingerprint(f"onnx:{tmp_path / n / 'm.onnx'}") for n in ("a", "b"))
+    assert fa.split("#")[1] == fb.split("#")[1]
+    (tmp_path / "b" / "m.onnx").write_bytes(b"other weights")
+    assert teacher_fingerprint(f"onnx:{tmp_path / 'b' / 'm.onnx'}").split("#")[1] != fa.split("#")[1]
