@@ -65,7 +65,7 @@ def test_depth_keys_and_a_row_end_to_end(root, tmp_path):
     assert plain.points_key() != row.points_key()
     params = {"scene": row.scene, "width": 32, "source": "fibonacci", "teacher": "sim:relative", "views": 12}
     # today's fusion defaults are not the values that behave as before they existed, so they are in the key
-    params["fusion"] = {"edge_jump": math.log(1.5), "edge_reach": 3}
+    params["fusion"] = {"edge_jump": math.log(1.5), "edge_reach": 3, "affine_gauge": "reference"}
     assert plain.points_key() == stage_key("points", {**params, "seed": 0}, code=POINTS_CODE)
     unseeded = Row(row.scene, row.width, "fibonacci", "oracle", row.views)
     assert unseeded.points_key() == stage_key(
