@@ -23,14 +23,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from teacher_errors import LABEL_FOV, TURN, measure, turned_camera
+from teacher_errors import measure, measurement_views, view_truths
 
-from panorecon.geometry import centred_camera, make_layout
 from panorecon.io import atomic_write, json_text
 from panorecon.learned.train import DepthTrainConfig
 from panorecon.scenes import load_scene
-from panorecon.sources.builtin import default_view_size
-from panorecon.teachers.base import true_view_distance
 from panorecon.teachers.sim import NETWORK, PROFILES, SimTeacher
 
 TARGET_TEACHER = "onnx:panorecon/teachers/weights/learned-w16.onnx"
@@ -47,22 +44,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     target = json.loads(args.errors.read_text())["summary"][TARGET_TEACHER]["seen"]
-    layout = make_layout("fibonacci", 20)
-    size = default_view_size(args.width)
-    cams = [centred_camera(d, size, layout.fov_deg) for d in layout.directions]
-    border = [turned_camera(c, TURN * layout.fov_deg / 2, size, layout.fov_deg) for c in cams]
-    narrow = [centred_camera(d, size, LABEL_FOV) for d in layout.directions]
-    q = size // 4
-    half = np.zeros((size, size), bool)
-    half[q : size - q, q : size - q] = True
+    _, _, cams, border, narrow, half = measurement_views(args.width, 20)
     scenes = []
     for name in DepthTrainConfig().families:
         scene = load_scene(name, args.width)
-        truths = []
-        for cam in [*cams, *border, *narrow]:
-            d, sky = true_view_distance(scene, cam)
-            truths.append((np.where(sky, np.nan, d / cam.z_to_distance_factor()), sky))
-        scenes.append((scene, truths))
+        scenes.append((scene, view_truths(scene, [*cams, *border, *narrow])))
     done = {}
     if args.json and args.json.is_file():
         done = {(r["compress"], r["texture"], r["bend"]): r for r in json.loads(args.json.read_text())["grid"]}

@@ -220,6 +220,29 @@ class TruthTeacher:
         return out
 
 
+def measurement_views(width: int, views: int):
+    """-> (layout, view size, the Fibonacci views, their border-turned twins, their 60-degree twins, the central
+    patch mask [size, size]): what ``measure`` compares, at an ERP width."""
+    layout = make_layout("fibonacci", views)
+    size = default_view_size(width)
+    cams = [centred_camera(d, size, layout.fov_deg) for d in layout.directions]
+    border = [turned_camera(c, TURN * layout.fov_deg / 2, size, layout.fov_deg) for c in cams]
+    narrow = [centred_camera(d, size, LABEL_FOV) for d in layout.directions]
+    q = size // 4
+    half = np.zeros((size, size), bool)
+    half[q : size - q, q : size - q] = True
+    return layout, size, cams, border, narrow, half
+
+
+def view_truths(scene, cams) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(true z-depth with NaN on sky, sky) [h, w] of each camera."""
+    truths = []
+    for cam in cams:
+        d, sky = true_view_distance(scene, cam)
+        truths.append((np.where(sky, np.nan, d / cam.z_to_distance_factor()), sky))
+    return truths
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--width", type=int, default=512, help="ERP width of the scenes (the tables': 512)")
@@ -236,21 +259,11 @@ def main(argv=None) -> int:
     teachers += [get_teacher(f"onnx:{os.path.relpath(p)}") for p in shipped_models()]
     teachers += [ControlTeacher("constant"), ControlTeacher("position prior", prior)]
     learned = {t.name for t in teachers if t.name.startswith("onnx:")}
-    layout = make_layout("fibonacci", args.views)
-    size = default_view_size(args.width)
-    cams = [centred_camera(d, size, layout.fov_deg) for d in layout.directions]
-    border = [turned_camera(c, TURN * layout.fov_deg / 2, size, layout.fov_deg) for c in cams]
-    narrow = [centred_camera(d, size, LABEL_FOV) for d in layout.directions]
-    q = size // 4
-    half = np.zeros((size, size), bool)
-    half[q : size - q, q : size - q] = True
+    layout, size, cams, border, narrow, half = measurement_views(args.width, args.views)
     results: dict = {t.name: {} for t in teachers}
     for name in args.scenes:
         scene = load_scene(name, args.width)
-        truths = []
-        for cam in [*cams, *border, *narrow]:
-            d, sky = true_view_distance(scene, cam)
-            truths.append((np.where(sky, np.nan, d / cam.z_to_distance_factor()), sky))
+        truths = view_truths(scene, [*cams, *border, *narrow])
         for t in teachers:
             r = measure(t, scene, cams, border, narrow, truths, half)
             if t.name in learned:

@@ -27,6 +27,7 @@ across depth edges; noise is multiplicative and Gaussian. Sky pixels are never v
 
 from __future__ import annotations
 
+import dataclasses
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -93,25 +94,18 @@ PROFILES = {
             drop=0.03,
             nan=0.01,
         ),
-        SimProfile(
-            "network",
-            "affine-invariant disparity with a network's errors: affine-disparity's, plus depth range compressed to "
-            f"the view's median (gamma {NETWORK[0]}), luminance copied into depth (kappa {NETWORK[1]}), a bend with "
-            f"the framing (rho {NETWORK[2]}); calibrated on learned-w16",
-            "disparity",
-            affine=True,
-            shift_frac=0.1,
-            warp=0.1,
-            edge_blur_px=2.0,
-            noise=0.03,
-            drop=0.03,
-            nan=0.01,
-            compress=NETWORK[0],
-            texture=NETWORK[1],
-            bend=NETWORK[2],
-        ),
     ]
 }
+PROFILES["network"] = dataclasses.replace(
+    PROFILES["affine-disparity"],
+    name="network",
+    description="affine-invariant disparity with a network's errors: affine-disparity's, plus depth range compressed "
+    f"to the view's median (gamma {NETWORK[0]}), luminance copied into depth (kappa {NETWORK[1]}), a bend with the "
+    f"framing (rho {NETWORK[2]}); calibrated on learned-w16",
+    compress=NETWORK[0],
+    texture=NETWORK[1],
+    bend=NETWORK[2],
+)
 
 
 def _smooth_field(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
