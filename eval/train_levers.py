@@ -93,13 +93,14 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    cfg = TrainConfig(res=256, labels=240, backend="cpu")
     types = {f.name: type(f.default) for f in dataclasses.fields(TrainConfig)}
+    overrides = {}
     for item in args.overrides:
         key, _, value = item.partition("=")
         if key not in types:
             ap.error(f"{item!r}: {key!r} is not a TrainConfig field ({', '.join(types)})")
-        setattr(cfg, key, types[key](value))
+        overrides[key] = types[key](value)
+    cfg = TrainConfig(**{"res": 256, "labels": 240, "backend": "cpu", **overrides})  # frozen: built once
     scene = load_scene(args.scene, 512)
     if args.teacher_views == "erp":
         scene = dataclasses.replace(scene, world=ErpTeacherWorld(scene.world))
