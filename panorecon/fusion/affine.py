@@ -122,10 +122,7 @@ def _null_pair_with_gauge(M: np.ndarray, ref: int) -> tuple[np.ndarray, np.ndarr
     variables: a flat overlap cannot tell scale from shift). Instead: the two right singular vectors of M with
     the smallest singular values (columns scaled to unit norm first, in float64), combined so that a_ref = 1
     and mean(b) = 0."""
-    norms = _column_norms(M)
-    G = (M / norms).T @ (M / norms)
-    _, vecs = np.linalg.eigh(G)
-    basis = vecs[:, :2] / norms[:, None]  # back to unscaled unknowns
+    basis = _smallest_right_vectors(M, 2)
     C = np.stack([basis[2 * ref], basis[1::2].mean(0)])  # a_ref and mean(b) of each basis vector
     coef = np.linalg.lstsq(C, np.array([1.0, 0.0]), rcond=None)[0]
     x = basis @ coef
@@ -141,7 +138,8 @@ def _reference_shift_gauge(M: np.ndarray, ref: int) -> tuple[np.ndarray, np.ndar
     n = M.shape[1]
     r = [2 * ref, 2 * ref + 1]
     o = [k for k in range(n) if k not in r]
-    Ms = M / _column_norms(M)
+    norms = _column_norms(M)
+    Ms = M / norms
     G = Ms.T @ Ms
     G_oo, G_or, G_rr = G[np.ix_(o, o)], G[np.ix_(o, r)], G[np.ix_(r, r)]
     S = G_rr - G_or.T @ np.linalg.lstsq(G_oo, G_or, rcond=None)[0]  # E = y^T S y, y the reference's scaled (a, b)
@@ -149,7 +147,6 @@ def _reference_shift_gauge(M: np.ndarray, ref: int) -> tuple[np.ndarray, np.ndar
     # when the reference's raw values vary over its overlaps)
     Li = np.linalg.inv(np.linalg.cholesky(G_rr))
     y = Li.T @ np.linalg.eigh(Li @ S @ Li.T)[1][:, 0]
-    norms = _column_norms(M)
     beta = (y[1] / norms[2 * ref + 1]) / (y[0] / norms[2 * ref]) if y[0] != 0 else -np.inf
     # t must be positive on the reference's pixels (a_ref = 1): beta > -min(raw_ref). Below that bound the ratio
     # falls towards it, so the constrained minimum is the bound (a farthest reference pixel at 1,000x the range)
@@ -162,12 +159,17 @@ def _reference_shift_gauge(M: np.ndarray, ref: int) -> tuple[np.ndarray, np.ndar
     P = np.zeros((n, n - 1))
     P[keep, np.arange(n - 1)] = 1.0
     P[2 * ref + 1, keep.index(2 * ref)] = beta
-    MP = M @ P
-    MPs = MP / _column_norms(MP)
-    z = np.linalg.eigh(MPs.T @ MPs)[1][:, 0] / _column_norms(MP)
-    x = P @ z
+    x = P @ _smallest_right_vectors(M @ P, 1)[:, 0]
     x = x / x[2 * ref]  # a_ref = 1
     return x[0::2], x[1::2]
+
+
+def _smallest_right_vectors(M: np.ndarray, k: int) -> np.ndarray:
+    """The k right singular vectors of M [rows, n] with the smallest singular values, found with M's columns
+    scaled to unit norm and returned in the unscaled unknowns -> [n, k]."""
+    norms = _column_norms(M)
+    Ms = M / norms
+    return np.linalg.eigh(Ms.T @ Ms)[1][:, :k] / norms[:, None]
 
 
 def _column_norms(M: np.ndarray) -> np.ndarray:
