@@ -67,6 +67,8 @@ log = logging.getLogger("panorecon.train")
 # throughout (at smaller sizes a coarse step saves little and the half-size targets lose detail; measured effects:
 # docs/benchmarks.md).
 COARSE_MIN_SIZE = 128
+# the orders in which steps take the labels (TrainConfig.label_order)
+LABEL_ORDERS = ("random", "shuffled")
 # init_detail's coarse Gaussians start as discs on their region's plane, this thick over their radius
 DISC_THICKNESS = 0.1
 
@@ -95,6 +97,14 @@ class TrainConfig:
     )
     fov_deg: float = opt(60.0, "field of view of the label and held-out views (degrees)", check=C.FOV_DEG)
     layout: str = opt("fibonacci", "layout of the pseudo-label directions", choices=_layouts)
+    label_order: str = opt(
+        "random",
+        "which label each step trains on: random (drawn with replacement) or shuffled (each pass over the labels a "
+        "new permutation, as 3DGS's and gsplat's trainers take their cameras: every label is seen once per pass; "
+        "measured effect: docs/benchmarks.md, time to quality)",
+        choices=LABEL_ORDERS,
+        neutral="random",
+    )
     backend: str = opt(
         "auto",
         "rasterizer: auto (gsplat on CUDA, cpu on the CPU), torch (the reference), cpu (C++), gsplat (CUDA)",
@@ -220,7 +230,18 @@ class TrainConfig:
         choices=("panorama", "none"),
     )
     init_opacity: float = opt(
-        0.1, "opacity of every initial Gaussian, in (0, 1) (3DGS: 0.1)", check=C.float_in(0.0, 1.0, "opacity")
+        0.1,
+        "opacity of every initial Gaussian, in (0, 1) (3DGS: 0.1), unless init_opacity_surface applies",
+        check=C.float_in(0.0, 1.0, "opacity"),
+    )
+    init_opacity_surface: float = opt(
+        0.3,
+        "opacity of every initial Gaussian when the given cloud is a surface (its neighbouring normals agree, as "
+        "flattening requires; not random points, which lie behind one another from the centre): one layer that "
+        "0.3 makes opaque to the labels within about a hundred steps, where 0.1 leaves it translucent for hundreds "
+        "(measured effect: docs/benchmarks.md, time to quality); 0: init_opacity for every cloud",
+        check=C.float_in(0.0, 1.0, "opacity"),
+        neutral=0.0,
     )
     disocclusion_fill_deg: float = opt(
         20.0,
@@ -229,11 +250,11 @@ class TrainConfig:
         check=C.float_in(0.0, 180.0, "degrees"),
     )
     disocclusion_fill_visits: float = opt(
-        40.0,
+        15.0,
         "label views that have seen each direction, on average, when the fill joins the model: the surface in "
-        "front of it is opaque from the centre by then, so it keeps its colour and opacity for the views that look "
-        "behind (step ~500 at 60 deg). A run that gets there only after half its steps takes the fill into its "
-        "initial cloud instead (0: always there)",
+        "front of it is opaque from the centre by then (init_opacity_surface), so it keeps its colour and opacity "
+        "for the views that look behind (step 187 at 60 deg). A run that gets there only after half its steps "
+        "takes the fill into its initial cloud instead (0: always there)",
     )
     disocclusion_opacity: float = opt(
         0.9,
@@ -269,9 +290,25 @@ class TrainConfig:
         for name in ("init_opacity", "disocclusion_opacity"):  # a logit: 0 and 1 are out of reach
             if not 0 < getattr(self, name) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: expected an opacity in (0, 1)")
+        if not 0 <= self.init_opacity_surface < 1:
+            raise ValueError(
+                f"init_opacity_surface = {self.init_opacity_surface!r}: expected 0 (off) or an opacity in (0, 1)"
+            )
 
     def digest(self) -> str:
         return hashlib.sha256(json.dumps(dataclasses.asdict(self), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def label_order(kind: str, n_views: int, iters: int, seed: int) -> np.ndarray:
+    """[iters] int64: the view each step trains on. ``random``: drawn with replacement; ``shuffled``: consecutive
+    passes, each a new permutation of the ``n_views`` (the last one cut at ``iters``)."""
+    gen = np.random.default_rng(seed)
+    if kind == "random":
+        return gen.integers(0, n_views, size=iters)
+    if kind == "shuffled":
+        passes = -(-iters // n_views)
+        return np.concatenate([gen.permutation(n_views) for _ in range(passes)])[:iters]
+    raise ValueError(f"label_order {kind!r}: expected one of {', '.join(LABEL_ORDERS)}")
 
 
 def fill_join_step(cfg: TrainConfig) -> int:
@@ -292,9 +329,12 @@ METRICS_MEANING = {
     "(the points stage's report reads n/a); flatten: no flattening onto the starting cloud's surface",
     "seconds": "wall seconds per stage: backend (loading or building the rasterizer), labels (pseudo-labels, "
     "off-centre labels and held-out views), flatten_surface (the given cloud's surface normals, their coherence and "
-    "each bin's plane for flattening, once, before training; absent with flatten_every = 0), train (the steps, "
+    "each bin's plane for flattening, once, before training; absent when neither flatten_every nor "
+    "init_opacity_surface asks for them), train (the steps, "
     "without the held-out history samples), flatten (the flattenings within train: flatten / train is their "
     "share), history, eval, total",
+    "initial_opacity": "the opacity every initial Gaussian started at: init_opacity_surface where the given "
+    "cloud is a surface (normal coherence at least FLAT_MIN_COHERENCE), else init_opacity",
     "initial_thinning": "the initial cloud after thinning to the label resolution (splat/initial.thin_by_detail): "
     "points kept, and per level (0: the label-pixel spacing; l: sites 2^l times further apart, kept where colour "
     "and geometry are smooth within init_detail and init_detail_depth)",
@@ -422,7 +462,16 @@ def train(
         if fill is not None and len(point_cloud) < before:  # the late fill thinned as the cloud was
             fill = thin_cloud(fill, max(1, round(len(fill) * len(point_cloud) / before)), cfg.seed)
             fill_points = len(fill)
-    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, cfg.init_opacity)
+    # the given cloud's surface seen from the centre, in bins it fills: whether it is one (its normals agree)
+    normals, coherence = None, None
+    if cfg.flatten_every or cfg.init_opacity_surface:
+        tf = time.perf_counter()
+        normals = surface_normals(given_cloud.xyz, flatten_height(len(given_cloud.xyz), lres, cfg.fov_deg))
+        coherence = normal_coherence(normals)
+        seconds["flatten_surface"] = time.perf_counter() - tf
+    is_surface = coherence is not None and coherence >= FLAT_MIN_COHERENCE
+    init_opacity = cfg.init_opacity_surface if cfg.init_opacity_surface and is_surface else cfg.init_opacity
+    model = GaussianModel.from_point_cloud(point_cloud, cfg.sh_degree, init_opacity)
     if cfg.init_detail and point_cloud.normals is not None:  # thin_by_detail's coarse points: discs on their plane
         flatten_to_discs(model, point_cloud.normals, DISC_THICKNESS)
     model = model.to(dev)
@@ -464,16 +513,13 @@ def train(
     surface = None  # the given cloud's surface seen from the centre, in label-pixel bins (the anchor's target)
     if cfg.w_anchor:
         surface = torch.from_numpy(surface_distances(given_cloud.xyz, anchor_height(lres, cfg.fov_deg))).to(dev)
-    frames, coherence = None, None  # the given cloud's surface planes per bin (flatten_height: bins the cloud fills)
-    if cfg.flatten_every:
+    frames = None  # the given cloud's surface planes per bin
+    if cfg.flatten_every and is_surface:
         tf = time.perf_counter()
-        normals = surface_normals(given_cloud.xyz, flatten_height(len(given_cloud.xyz), lres, cfg.fov_deg))
-        coherence = normal_coherence(normals)
-        if coherence >= FLAT_MIN_COHERENCE:
-            frames = flatten_frames(normals, dev)
-        else:
-            log.info("flattening skipped: %.0f %% of the cloud's neighbouring normals agree", 100 * coherence)
-        seconds["flatten_surface"] = time.perf_counter() - tf
+        frames = flatten_frames(normals, dev)
+        seconds["flatten_surface"] += time.perf_counter() - tf
+    elif cfg.flatten_every:
+        log.info("flattening skipped: %.0f %% of the cloud's neighbouring normals agree", 100 * coherence)
     # every label's target, teacher depth and camera on the device once (no host-to-device copy per step)
     views = labels + offcentre  # the views trained on: teacher depth for the centre's, masks for the others'
     targets = torch.from_numpy(np.stack([v.rgb for v in views])).to(dev)
@@ -499,8 +545,7 @@ def train(
     # training seconds exclude the held-out history samples; a resumed run continues from its last sample
     history_s, clock0 = 0.0, (history[-1].get("seconds", 0.0) if history else 0.0)
     seconds["flatten"] = 0.0  # within seconds["train"]
-    gen = np.random.default_rng(cfg.seed)
-    order = gen.integers(0, len(views), size=cfg.iters)
+    order = label_order(cfg.label_order, len(views), cfg.iters, cfg.seed)
     bar = tqdm(range(start, cfg.iters), initial=start, total=cfg.iters, disable=not progress, desc="train")
 
     def checkpoint(iteration: int) -> str:
@@ -669,6 +714,7 @@ def train(
         iterations=cfg.iters,
         gaussians=len(model),
         initial_gaussians=len(point_cloud),
+        initial_opacity=init_opacity,
         disocclusion_points=fill_points,
         disocclusion_step=max(fill_step, 0),
         backend=backend,

@@ -29,11 +29,6 @@ def test_the_committed_tables_are_the_papers_five_and_their_reruns():
     ]
 
 
-# tables run under the defaults of their day, which are still today's: their pins name them so that a later move
-# of a default does not orphan them, and --unpinned gives the same runs until one moves
-AT_TODAYS_DEFAULTS = ("table2_learned", "table4_learned")
-
-
 @pytest.mark.parametrize("name", TABLES)
 def test_a_committed_table_is_its_suites_expansion_nothing_to_run_none_left_over(name):
     suite = load_suite(ROOT / "eval" / "suites" / f"{name}.toml")
@@ -51,15 +46,8 @@ def test_a_committed_table_is_its_suites_expansion_nothing_to_run_none_left_over
     assert len(committed) == len(have)  # one row per run
 
 
-@pytest.mark.parametrize("name", [t for t in TABLES if t not in AT_TODAYS_DEFAULTS])
+@pytest.mark.parametrize("name", TABLES)
 def test_unpinned_is_todays_defaults_and_orphans_the_table(name):
     suite = load_suite(ROOT / "eval" / "suites" / f"{name}.toml", unpinned=True)
     have = set(pd.read_csv(ROOT / "benchmarks" / "tables" / name / "results.csv")["run_id"])
     assert suite.pinned and not {r.run_id() for r in suite.rows} & have
-
-
-@pytest.mark.parametrize("name", AT_TODAYS_DEFAULTS)
-def test_a_table_at_todays_defaults_is_the_same_runs_unpinned(name):
-    pinned = load_suite(ROOT / "eval" / "suites" / f"{name}.toml")
-    unpinned = load_suite(ROOT / "eval" / "suites" / f"{name}.toml", unpinned=True)
-    assert pinned.pinned and {r.run_id() for r in pinned.rows} == {r.run_id() for r in unpinned.rows}

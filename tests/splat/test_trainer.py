@@ -18,7 +18,7 @@ from panorecon.splat.model import GaussianModel
 from panorecon.splat.ply import load_ply
 from panorecon.splat.rasterize import resolve_backend
 from panorecon.splat.strategy import DefaultStrategy, edit_parameters
-from panorecon.splat.trainer import TrainConfig, fill_join_step, train
+from panorecon.splat.trainer import LABEL_ORDERS, TrainConfig, fill_join_step, label_order, train
 from panorecon.teachers import get_teacher
 
 
@@ -158,15 +158,37 @@ def test_the_initial_cloud_follows_the_training_resolution(setup, tmp_path):
     assert m["initial_gaussians"] == len(pc) and m["disocclusion_points"] == 0
 
 
+def test_label_orders():
+    """random: the run's generator's draws with replacement (the order every committed run took); shuffled: each
+    pass of n steps a permutation of the n views, the last pass cut at iters."""
+    drawn = label_order("random", 240, 3000, 7)
+    assert np.array_equal(drawn, np.random.default_rng(7).integers(0, 240, size=3000))
+    assert np.bincount(drawn[:240], minlength=240).max() > 1  # with replacement: some label twice in one pass
+    passes = label_order("shuffled", 240, 3000, 7)
+    assert len(passes) == 3000 and passes.dtype.kind == "i"
+    for k in range(12):
+        assert sorted(passes[240 * k : 240 * (k + 1)]) == list(range(240))
+    assert set(passes[2880:]) <= set(range(240)) and len(set(passes[2880:])) == 120  # the 13th pass, cut
+    assert not np.array_equal(passes[:240], passes[240:480])  # a new permutation each pass
+    assert np.array_equal(passes, label_order("shuffled", 240, 3000, 7))  # the seed fixes it
+    assert set(LABEL_ORDERS) == {"random", "shuffled"}
+    with pytest.raises(ValueError, match="label_order 'sorted'"):
+        label_order("sorted", 240, 10, 0)
+
+
 def test_the_fill_joins_once_each_direction_has_been_seen_enough_and_short_runs_start_with_it():
-    """40 visits of 60-degree views (each 4 asin(1/4) sr of the sphere): step 498; at 300 steps that is past
-    half the run, so the fill is in the initial cloud (step 0), as it is with visits 0."""
-    assert fill_join_step(TrainConfig(iters=3000)) == math.ceil(40 * math.pi / math.asin(0.25)) == 498
-    assert fill_join_step(TrainConfig(iters=997)) == 498 and fill_join_step(TrainConfig(iters=996)) == 0
+    """15 visits (the default) of 60-degree views (each 4 asin(1/4) sr of the sphere): step 187; 40 visits: step
+    498; at 300 steps 187 is past half the run, so the fill is in the initial cloud (step 0), as with visits 0."""
+    assert fill_join_step(TrainConfig(iters=3000)) == math.ceil(15 * math.pi / math.asin(0.25)) == 187
+    visits40 = dict(disocclusion_fill_visits=40.0)
+    assert fill_join_step(TrainConfig(iters=3000, **visits40)) == math.ceil(40 * math.pi / math.asin(0.25)) == 498
+    assert fill_join_step(TrainConfig(iters=997, **visits40)) == 498
+    assert fill_join_step(TrainConfig(iters=996, **visits40)) == 0
+    assert fill_join_step(TrainConfig(iters=375)) == 187 and fill_join_step(TrainConfig(iters=374)) == 0
     assert fill_join_step(TrainConfig(iters=300)) == 0
     assert fill_join_step(TrainConfig(iters=3000, disocclusion_fill_visits=0)) == 0
     wide = TrainConfig(iters=3000, fov_deg=90.0)  # a 90-degree view covers 4 asin(1/2) = 2.09 sr
-    assert fill_join_step(wide) == math.ceil(40 * math.pi / math.asin(0.5))
+    assert fill_join_step(wide) == math.ceil(15 * math.pi / math.asin(0.5))
 
 
 def test_a_late_fill_joins_the_model_at_its_step_with_its_opacity(setup, tmp_path, monkeypatch):
@@ -685,7 +707,8 @@ def test_flatten_every_lays_the_saved_gaussians_on_the_clouds_surface(setup, tmp
     in_plane = (np.trace(cov, axis1=1, axis2=2) - along_n) / 2
     np.testing.assert_allclose(along_n / in_plane, FLAT_THICKNESS**2, rtol=1e-2)
     steps.clear()
-    off = train(scene, pc, dataclasses.replace(c, flatten_every=0), tmp_path / "g", depth_fn, progress=False)
+    c_off = dataclasses.replace(c, flatten_every=0, init_opacity_surface=0.0)  # nothing asks for the surface
+    off = train(scene, pc, c_off, tmp_path / "g", depth_fn, progress=False)
     assert steps == [] and off["seconds"]["flatten"] == 0 and "flatten_surface" not in off["seconds"]
 
 
@@ -707,3 +730,30 @@ def test_a_cloud_without_a_surface_is_not_flattened_and_the_run_says_why(setup, 
     assert calls == [1, 1] and "flatten" not in metrics["skipped"]
     off = train(scene, pc, dataclasses.replace(c, flatten_every=0), tmp_path / "t", depth_fn, progress=False)
     assert off["skipped"]["flatten"] == "flatten_every = 0"
+
+
+def test_a_surface_starts_at_its_own_opacity_random_points_at_init_opacity(setup, tmp_path, monkeypatch):
+    """init_opacity_surface applies where the given cloud's normals agree (a fused cloud), init_opacity where they
+    do not (random points lie behind one another from the centre); 0 turns the rule off; metrics.json says which."""
+    from panorecon.geometry import PointCloud
+
+    scene, pc, depth_fn = setup
+    xyz = np.random.default_rng(0).normal(size=(4000, 3)) * 2.0
+    scattered = PointCloud(xyz.astype(np.float32), np.full((4000, 3), 128, np.uint8), None, None)
+    started = []
+    build = trainer_mod.GaussianModel.from_point_cloud
+
+    def spy(cloud, sh_degree, init_opacity):
+        started.append(init_opacity)
+        return build(cloud, sh_degree, init_opacity)
+
+    monkeypatch.setattr(trainer_mod.GaussianModel, "from_point_cloud", spy)
+    c = cfg(iters=2, res=16, labels=4, heldout=0, checkpoint_every=0, history_every=0, disocclusion_fill_deg=0.0)
+    assert (c.init_opacity, c.init_opacity_surface) == (0.1, 0.3)
+    for cloud, surface_rule, want in ((pc, 0.3, 0.3), (scattered, 0.3, 0.1), (pc, 0.0, 0.1), (pc, 0.5, 0.5)):
+        started.clear()
+        run = dataclasses.replace(c, init_opacity_surface=surface_rule, flatten_every=0)
+        m = train(scene, cloud, run, tmp_path / f"{len(cloud)}_{surface_rule}", depth_fn, progress=False)
+        assert started == [want] and m["initial_opacity"] == want
+    with pytest.raises(ValueError, match="init_opacity_surface = 1.0"):
+        TrainConfig(init_opacity_surface=1.0)
