@@ -6,6 +6,7 @@ resolve a 10 % change on a machine whose speed moves by 18 % in 20 minutes; inte
     git archive OLD | tar -x -C /tmp/old
     python eval/kernel_ab.py /tmp/old                       # the bench scene (200k Gaussians, 256^2)
     python eval/kernel_ab.py /tmp/old --run OUT --views 8   # a panorecon train output's model and label views
+    python eval/kernel_ab.py /tmp/old --run OUT --size 128  # ... at the coarse steps' size (K scaled)
 
 This checkout's build is the package's own (``cpu_backend.load()``); the other one is built once into
 ``$PANORECON_CACHE/torch_extensions/kernel_ab/``. Given this checkout itself, both sides are the same build.
@@ -45,8 +46,9 @@ def build(csrc: Path, name: str):
     )
 
 
-def inputs(run: str | None, views: int, gaussians: int):
-    """(means, quats, scales, opacities, sh0, [(viewmat [1,4,4], K [1,3,3])], size)."""
+def inputs(run: str | None, views: int, gaussians: int, size: int | None = None):
+    """(means, quats, scales, opacities, sh0, [(viewmat [1,4,4], K [1,3,3])], size); ``size``: the views rendered at
+    this size instead of their own (K scaled, as the trainer's coarse steps do)."""
     import torch
 
     from panorecon.bench.rasterizer import scene, trained_views
@@ -54,8 +56,12 @@ def inputs(run: str | None, views: int, gaussians: int):
     from panorecon.splat.rasterize.sh import C0
 
     if run is not None:
-        return trained_views(run, views)
-    size = 256
+        means, quats, scales, opac, sh0, cams, own = trained_views(run, views)
+        if size is None or size == own:
+            return means, quats, scales, opac, sh0, cams, own
+        scale = torch.tensor([[size / own], [size / own], [1.0]])
+        return means, quats, scales, opac, sh0, [(V, K * scale) for V, K in cams], size
+    size = size or 256
     K = torch.tensor(intrinsics_from_fov(size, size, 60.0), dtype=torch.float32)[None]
     cams = [(torch.tensor(look_at_viewmat([0, 0, 0], [1, 0, 0]), dtype=torch.float32)[None], K)]
     means, quats, scales, opac, colors = scene(gaussians)
@@ -85,6 +91,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--run", default=None, help="a panorecon train output folder: its model and label views")
     ap.add_argument("--views", type=int, default=8)
     ap.add_argument("--gaussians", type=int, default=200_000, help="bench scene size without --run")
+    ap.add_argument("--size", type=int, default=None, help="view size in pixels (default: the views' own, or 256)")
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
@@ -97,7 +104,7 @@ def main(argv=None) -> dict:
         raise SystemExit(f"{args.old}: no panorecon/splat/rasterize/csrc there (expected a panorecon checkout)")
     new = cpu_backend.load()  # this checkout's own build
     builds = {"new": new, "old": new if theirs == here else build(theirs, "kernel_ab_old")}
-    means, quats, scales, opac, sh0, cams, S = inputs(args.run, args.views, args.gaussians)
+    means, quats, scales, opac, sh0, cams, S = inputs(args.run, args.views, args.gaussians, args.size)
     rest = torch.zeros(len(means), 15, 3)
     g = torch.Generator().manual_seed(3)
     upstream = [torch.rand(1, S, S, c, generator=g) for c in (3, 1, 1)]
