@@ -34,6 +34,30 @@ class DeviceName:
 
 DEVICE_NAME = DeviceName()
 
+# The float unary ops that ATen hands, chunk by chunk on its intra-op threads, to MKL's vector math library (VML)
+# where torch is built with MKL (aten/src/ATen/cpu/vml.h).
+VML_OPS = (
+    "abs", "acos", "asin", "atan", "cos", "erf", "erfc", "exp", "expm1", "log", "log10", "log1p", "log2", "sin",
+    "sqrt", "tan", "tanh", "trunc",
+)  # fmt: skip
+
+
+def warm_up_vml() -> None:
+    """Call each of ``VML_OPS`` once on one element, in float32 and float64, on this thread. oneMKL picks each
+    VML function's kernel on its first call, and where that first call runs on several intra-op threads at once,
+    one thread can run a low-accuracy kernel for its whole chunk of that one call (pytorch/pytorch#188792): in
+    the trainer, 5 of 30 fresh processes rendered the first step from a ``torch.exp`` of the log scales with
+    relative errors up to 1.5e-4 on the second thread's half, so that identical runs, and a run resumed from its
+    checkpoint, trained along different paths. A one-element call is serial, so each kernel is picked here,
+    before any concurrent use. Run once, when this module is imported."""
+    for dtype in (torch.float32, torch.float64):
+        x = torch.full((1,), 0.5, dtype=dtype)
+        for op in VML_OPS:
+            getattr(torch, op)(x)
+
+
+warm_up_vml()
+
 
 def resolve_device(name: str | torch.device = "auto") -> torch.device:
     """'auto' -> CUDA when a CUDA device is present, else the CPU; 'cpu'; 'cuda' or 'cuda:K' (refused with a
